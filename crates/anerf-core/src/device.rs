@@ -1,0 +1,107 @@
+//! Run-time backend choice. Which backends exist is decided at build time by cargo features
+//! (`flex` always, `ndarray` by default, `wgpu` opt-in); which one runs is chosen here, e.g. from `--device`.
+
+use std::fmt;
+use std::str::FromStr;
+
+use burn::prelude::Device;
+
+/// A compute backend the user can ask for by name.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum DeviceChoice {
+    /// Burn's pure-Rust CPU backend (multi-threaded with rayon and SIMD).
+    #[default]
+    Flex,
+    /// The ndarray CPU backend (deprecated upstream, kept for cross-checking).
+    Ndarray,
+    /// The default wgpu adapter (a GPU when one exists).
+    Wgpu,
+}
+
+impl DeviceChoice {
+    /// Every choice, in the order they are listed to users.
+    pub const ALL: [DeviceChoice; 3] = [
+        DeviceChoice::Flex,
+        DeviceChoice::Ndarray,
+        DeviceChoice::Wgpu,
+    ];
+
+    /// Whether this binary was built with the backend.
+    pub fn is_compiled(self) -> bool {
+        match self {
+            DeviceChoice::Flex => true,
+            DeviceChoice::Ndarray => cfg!(feature = "ndarray"),
+            DeviceChoice::Wgpu => cfg!(feature = "wgpu"),
+        }
+    }
+
+    fn feature(self) -> &'static str {
+        match self {
+            DeviceChoice::Flex => "flex",
+            DeviceChoice::Ndarray => "ndarray",
+            DeviceChoice::Wgpu => "wgpu",
+        }
+    }
+
+    /// The Burn device (without autodiff), or an error naming the cargo feature to enable.
+    pub fn device(self) -> Result<Device, String> {
+        match self {
+            DeviceChoice::Flex => Ok(Device::flex()),
+            #[cfg(feature = "ndarray")]
+            #[allow(deprecated)]
+            DeviceChoice::Ndarray => Ok(Device::ndarray()),
+            #[cfg(feature = "wgpu")]
+            DeviceChoice::Wgpu => Ok(Device::wgpu(Default::default())),
+            #[allow(unreachable_patterns)]
+            other => Err(format!(
+                "device '{other}' is not compiled into this binary; rebuild with `--features {}`",
+                other.feature()
+            )),
+        }
+    }
+}
+
+/// The CPU device (flex) for host-side tensor work and tests, whatever other backends are compiled
+/// (`Device::default()` would prefer a GPU backend when one is compiled in).
+pub fn cpu_device() -> Device {
+    DeviceChoice::Flex.device().expect("the flex backend is always compiled")
+}
+
+impl fmt::Display for DeviceChoice {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(self.feature())
+    }
+}
+
+impl FromStr for DeviceChoice {
+    type Err = String;
+
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        Self::ALL
+            .into_iter()
+            .find(|c| c.feature() == s.to_ascii_lowercase())
+            .ok_or_else(|| format!("unknown device '{s}': expected one of flex, ndarray, wgpu"))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn parses_every_name_and_rejects_others() {
+        for c in DeviceChoice::ALL {
+            assert_eq!(c.to_string().parse::<DeviceChoice>().unwrap(), c);
+        }
+        let err = "cuda9".parse::<DeviceChoice>().unwrap_err();
+        assert!(err.contains("cuda9") && err.contains("flex"), "{err}");
+    }
+
+    #[test]
+    fn default_backend_is_compiled_and_usable() {
+        let device = DeviceChoice::default().device().unwrap();
+        let t = burn::prelude::Tensor::<1>::from_floats([1.0, 2.0], &device);
+        assert_eq!(t.sum().into_scalar::<f32>(), 3.0);
+    }
+}

@@ -1,0 +1,37 @@
+//! Errors of the geometry layer.
+
+use thiserror::Error;
+
+/// Invalid skeletons, poses, weights or cameras, with the offending index and value.
+#[derive(Debug, Error, Clone, PartialEq)]
+pub enum GeometryError {
+    #[error("skeleton is empty: it needs at least one joint")]
+    EmptySkeleton,
+    #[error("skeleton has {joints} rest joints but {parents} parent entries")]
+    ParentCountMismatch { joints: usize, parents: usize },
+    #[error("joint 0 must be the root (no parent), but its parent is {parent}")]
+    RootNotFirst { parent: usize },
+    #[error("joint {joint} has no parent: only joint 0 may be the root")]
+    SecondRoot { joint: usize },
+    #[error(
+        "joint {joint} has parent {parent}, expected an index below {joint} (parents must come before their \
+         children; anything else is out of range or a cycle)"
+    )]
+    ParentNotBefore { joint: usize, parent: usize },
+    #[error("{what} is not finite: {value}")]
+    NonFinite { what: String, value: String },
+    #[error("pose array has {len} numbers, expected 3 per joint")]
+    PoseLength { len: usize },
+    #[error("pose has {got} joint rotations, the skeleton has {expected} joints")]
+    PoseSizeMismatch { expected: usize, got: usize },
+    #[error("blend weights have {got} entries, the skeleton has {expected} joints")]
+    WeightCountMismatch { expected: usize, got: usize },
+    #[error("blend weights must be non-negative and sum to 1 (±{tolerance}), got sum {sum}")]
+    WeightsNotNormalised { sum: f32, tolerance: f32 },
+    #[error(
+        "blended skinning matrix is singular (|det| = {det:e}); the point cannot be un-skinned"
+    )]
+    SingularBlend { det: f32 },
+    #[error("camera {what} is invalid: {detail}")]
+    InvalidCamera { what: &'static str, detail: String },
+}

@@ -1,0 +1,16 @@
+//! Geometry of a posed human seen by calibrated cameras: rotations, skeletons and bone transforms,
+//! linear blend skinning (glam for single points, Burn tensors for batches), cameras, rays and boxes.
+
+pub mod aabb;
+pub mod camera;
+pub mod lbs;
+pub mod rotation;
+pub mod skeleton;
+pub mod skinning;
+
+pub use aabb::{Aabb, RayHit};
+pub use camera::{Camera, Distortion, PixelConvention, Ray};
+pub use lbs::{blend_transforms, forward_lbs_point, inverse_lbs_point, validate_weights};
+pub use rotation::{axis_angle_to_matrix, matrix_to_axis_angle};
+pub use skeleton::{BoneTransforms, CanonicalPose, GlobalTransform, Pose, Skeleton};
+pub use skinning::BoneMatrices;

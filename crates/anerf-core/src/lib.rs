@@ -1,0 +1,27 @@
+//! Core of anerf: geometry (skeletons, skinning, cameras, rays), the Burn modules of Animatable NeRF,
+//! the volume renderer and the losses. No file I/O lives here.
+//!
+//! Conventions used throughout (see `docs/CONVENTIONS.md` at the repository root):
+//! * lengths are metres;
+//! * vectors are column vectors, `x' = R x + t`; glam matrices are column-major in memory;
+//! * frames: **world** (calibrated capture frame) → **pose space** (`x_pose = R_hᵀ (x_world − T_h)`) →
+//!   **canonical** (T-pose) through inverse linear blend skinning.
+
+pub mod device;
+pub mod error;
+pub mod geometry;
+pub mod render;
+pub mod tensor;
+
+pub use device::DeviceChoice;
+pub use error::GeometryError;
+
+/// Folder holding the fixtures written by `scripts/fixtures/generate.py` (`target/fixtures` of the workspace).
+///
+/// Tests that read fixtures fail with a message naming the script when the folder is missing.
+pub fn fixtures_dir() -> std::path::PathBuf {
+    if let Some(dir) = std::env::var_os("ANERF_FIXTURES") {
+        return dir.into();
+    }
+    std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../target/fixtures")
+}

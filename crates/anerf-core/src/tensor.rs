@@ -1,0 +1,22 @@
+//! Small helpers between host memory and Burn tensors.
+
+use burn::prelude::*;
+
+/// Reads a float tensor back to the host as `f32`, row-major.
+///
+/// Panics only when the backend cannot read back synchronously (never on the CPU backends).
+pub fn to_host<const D: usize>(t: Tensor<D>) -> Vec<f32> {
+    t.try_into_vec_as::<f32>()
+        .expect("reading a tensor back to the host")
+}
+
+/// A `[rows, cols]` tensor from row-major host data.
+pub fn from_rows(data: &[f32], rows: usize, cols: usize, device: &Device) -> Tensor<2> {
+    assert_eq!(
+        data.len(),
+        rows * cols,
+        "from_rows: {} values for a {rows}×{cols} tensor",
+        data.len()
+    );
+    Tensor::<1>::from_floats(data, device).reshape([rows, cols])
+}
