@@ -65,7 +65,9 @@ impl DeviceChoice {
 /// The CPU device (flex) for host-side tensor work and tests, whatever other backends are compiled
 /// (`Device::default()` would prefer a GPU backend when one is compiled in).
 pub fn cpu_device() -> Device {
-    DeviceChoice::Flex.device().expect("the flex backend is always compiled")
+    DeviceChoice::Flex
+        .device()
+        .expect("the flex backend is always compiled")
 }
 
 impl fmt::Display for DeviceChoice {

@@ -7,14 +7,17 @@
 //! * frames: **world** (calibrated capture frame) → **pose space** (`x_pose = R_hᵀ (x_world − T_h)`) →
 //!   **canonical** (T-pose) through inverse linear blend skinning.
 
+pub mod body;
 pub mod device;
 pub mod error;
 pub mod geometry;
+pub mod ids;
 pub mod render;
 pub mod tensor;
 
 pub use device::DeviceChoice;
 pub use error::GeometryError;
+pub use ids::{FrameId, ViewId};
 
 /// Folder holding the fixtures written by `scripts/fixtures/generate.py` (`target/fixtures` of the workspace).
 ///

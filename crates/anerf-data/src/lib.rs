@@ -1,1 +1,7 @@
-//! placeholder
+//! Data for anerf: the on-disk formats of ZJU-MoCap and Human3.6M (`.npy`, a restricted pickle reader,
+//! images and masks), their loaders into one [`Subject`] type, preprocessing caches, ray sampling, and the
+//! built-in synthetic subjects.
+
+pub mod subject;
+
+pub use subject::{BodyModel, DatasetKind, FrameRecord, SkinningWeights, Subject};

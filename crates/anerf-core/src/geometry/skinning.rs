@@ -176,10 +176,15 @@ mod tests {
         let run = |device: Device| {
             let bones = BoneMatrices::new(&a, &device);
             let w = weights_tensor(&weights, &device);
-            to_host(bones.inverse(bones.forward(points_tensor(&points, &device), w.clone()) * 1.1, w))
+            to_host(bones.inverse(
+                bones.forward(points_tensor(&points, &device), w.clone()) * 1.1,
+                w,
+            ))
         };
         let reference = run(crate::device::cpu_device());
-        let ndarray = run(crate::DeviceChoice::Ndarray.device().expect("the ndarray feature is on by default"));
+        let ndarray = run(crate::DeviceChoice::Ndarray
+            .device()
+            .expect("the ndarray feature is on by default"));
         for (a, b) in reference.iter().zip(&ndarray) {
             assert!((a - b).abs() < 1e-5, "{a} vs {b}");
         }

@@ -1,0 +1,322 @@
+//! Blend-weight volumes: `K` skinning weights plus the distance to the body surface (metres) on a regular
+//! grid, looked up trilinearly. The reference stores them as `(Nx, Ny, Nz, K+1)` float32 arrays
+//! (`lbs/bweights/{i}.npy` in pose space, `lbs/tbw.npy` in canonical space).
+
+use burn::prelude::*;
+use glam::Vec3;
+
+use super::super::geometry::Aabb;
+
+/// A `(Nx, Ny, Nz, K+1)` grid whose node `(0,0,0)` sits at `bounds.min` and node `(Nx−1, Ny−1, Nz−1)` at
+/// `bounds.max` (`grid_sample` with `align_corners=True`). Channels `0..K` are blend weights, channel `K`
+/// the distance to the body (metres). Points outside the box read the nearest border value.
+///
+/// Reading the reference's files with the reference's bounds (SMPL box ± 0.05 m) reproduces its lookup
+/// exactly, including its stretch of up to one voxel; volumes anerf builds itself place their nodes so
+/// that the mapping is exact.
+#[derive(Debug, Clone, PartialEq)]
+pub struct BlendWeightVolume {
+    pub bounds: Aabb,
+    pub dims: [usize; 3],
+    pub num_joints: usize,
+    /// Row-major `[x][y][z][channel]`.
+    pub data: Vec<f32>,
+}
+
+impl BlendWeightVolume {
+    /// Checks that the data length matches the dimensions, all values are finite and the box is not empty.
+    pub fn new(
+        bounds: Aabb,
+        dims: [usize; 3],
+        num_joints: usize,
+        data: Vec<f32>,
+    ) -> Result<Self, String> {
+        let expected = dims.iter().product::<usize>() * (num_joints + 1);
+        if dims.contains(&0) || data.len() != expected {
+            return Err(format!(
+                "volume of {dims:?} nodes × {} channels needs {expected} values, got {}",
+                num_joints + 1,
+                data.len()
+            ));
+        }
+        if !(bounds.size().cmpgt(Vec3::ZERO).all()
+            && bounds.min.is_finite()
+            && bounds.max.is_finite())
+        {
+            return Err(format!("volume bounds {bounds:?} are empty or not finite"));
+        }
+        if let Some(i) = data.iter().position(|v| !v.is_finite()) {
+            return Err(format!("volume value {i} is not finite ({})", data[i]));
+        }
+        Ok(Self {
+            bounds,
+            dims,
+            num_joints,
+            data,
+        })
+    }
+
+    /// Channels per node (`K + 1`).
+    pub fn channels(&self) -> usize {
+        self.num_joints + 1
+    }
+
+    /// Position of node `(i, j, k)`.
+    pub fn node_position(&self, i: usize, j: usize, k: usize) -> Vec3 {
+        let t = |idx: usize, n: usize| {
+            if n > 1 {
+                idx as f32 / (n - 1) as f32
+            } else {
+                0.0
+            }
+        };
+        let s = Vec3::new(t(i, self.dims[0]), t(j, self.dims[1]), t(k, self.dims[2]));
+        self.bounds.min + s * self.bounds.size()
+    }
+
+    fn node(&self, i: usize, j: usize, k: usize) -> &[f32] {
+        let c = self.channels();
+        let start = ((i * self.dims[1] + j) * self.dims[2] + k) * c;
+        &self.data[start..start + c]
+    }
+
+    /// Trilinear lookup at one point: `K + 1` values (weights, then distance).
+    pub fn sample(&self, p: Vec3) -> Vec<f32> {
+        let corners = self.corners(p);
+        let mut out = vec![0.0; self.channels()];
+        for (idx, w) in corners {
+            for (o, v) in out.iter_mut().zip(self.node(idx[0], idx[1], idx[2])) {
+                *o += w * v;
+            }
+        }
+        out
+    }
+
+    /// The 8 surrounding nodes and their trilinear weights (border clamped).
+    fn corners(&self, p: Vec3) -> [([usize; 3], f32); 8] {
+        let mut base = [0usize; 3];
+        let mut frac = [0.0f32; 3];
+        for a in 0..3 {
+            let n = self.dims[a];
+            let u = ((p[a] - self.bounds.min[a]) / self.bounds.size()[a] * (n - 1) as f32)
+                .clamp(0.0, (n - 1) as f32);
+            let i0 = (u.floor() as usize).min(n.saturating_sub(2));
+            base[a] = i0;
+            frac[a] = u - i0 as f32;
+        }
+        std::array::from_fn(|c| {
+            let mut idx = [0usize; 3];
+            let mut w = 1.0;
+            for a in 0..3 {
+                let hi = (c >> a) & 1 == 1;
+                idx[a] = (base[a] + hi as usize).min(self.dims[a] - 1);
+                w *= if hi { frac[a] } else { 1.0 - frac[a] };
+            }
+            (idx, w)
+        })
+    }
+
+    /// Uploads the volume for tensor lookups.
+    pub fn to_tensor(&self, device: &Device) -> VolumeTensor {
+        let nodes = self.dims.iter().product::<usize>();
+        VolumeTensor {
+            table: crate::tensor::from_rows(&self.data, nodes, self.channels(), device),
+            min: self.bounds.min,
+            size: self.bounds.size(),
+            dims: self.dims,
+            num_joints: self.num_joints,
+        }
+    }
+}
+
+/// A [`BlendWeightVolume`] on a device: a `[nodes, K+1]` table read with one gather for all 8 corners.
+#[derive(Debug, Clone)]
+pub struct VolumeTensor {
+    table: Tensor<2>,
+    min: Vec3,
+    size: Vec3,
+    dims: [usize; 3],
+    num_joints: usize,
+}
+
+/// Blend weights and distance read from a volume at a batch of points.
+#[derive(Debug, Clone)]
+pub struct VolumeSample {
+    /// `[N, K]` prior blend weights `w^s` (interpolated, so rows sum to 1 only up to interpolation).
+    pub weights: Tensor<2>,
+    /// `[N, 1]` distance to the body, metres.
+    pub distance: Tensor<2>,
+}
+
+impl VolumeTensor {
+    /// Number of joints `K`.
+    pub fn num_joints(&self) -> usize {
+        self.num_joints
+    }
+
+    /// Trilinear lookup at points `[N, 3]` (the volume's frame, metres), border clamped; differentiable in
+    /// the points.
+    pub fn sample(&self, points: Tensor<2>) -> VolumeSample {
+        let [n, _] = points.dims();
+        let mut base = Vec::with_capacity(3);
+        let mut frac = Vec::with_capacity(3);
+        for a in 0..3 {
+            let cells = (self.dims[a] - 1) as f32;
+            let u = ((points.clone().narrow(1, a, 1) - self.min[a]) * (cells / self.size[a]))
+                .clamp(0.0, cells);
+            let i0 = u
+                .clone()
+                .detach()
+                .floor()
+                .clamp(0.0, (self.dims[a] as f32 - 2.0).max(0.0));
+            frac.push(u - i0.clone());
+            base.push(i0);
+        }
+        let (ny, nz) = (self.dims[1] as f32, self.dims[2] as f32);
+        let mut indices = Vec::with_capacity(8);
+        let mut weights = Vec::with_capacity(8);
+        for c in 0..8 {
+            let mut idx: Vec<Tensor<2>> = Vec::with_capacity(3);
+            let mut w: Option<Tensor<2>> = None;
+            for a in 0..3 {
+                let hi = (c >> a) & 1 == 1;
+                let i = if hi {
+                    (base[a].clone() + 1.0).clamp_max((self.dims[a] - 1) as f32)
+                } else {
+                    base[a].clone()
+                };
+                idx.push(i);
+                let wa = if hi {
+                    frac[a].clone()
+                } else {
+                    frac[a].clone().neg() + 1.0
+                };
+                w = Some(match w {
+                    Some(w) => w * wa,
+                    None => wa,
+                });
+            }
+            let flat = (idx[0].clone() * ny + idx[1].clone()) * nz + idx[2].clone();
+            indices.push(flat.reshape([n]));
+            weights.push(w.expect("three axes"));
+        }
+        let index = Tensor::cat(indices, 0).int();
+        let gathered = self
+            .table
+            .clone()
+            .select(0, index)
+            .reshape([8, n, self.num_joints + 1]);
+        let w = Tensor::stack::<3>(weights, 0);
+        let values = (gathered * w).sum_dim(0).reshape([n, self.num_joints + 1]);
+        VolumeSample {
+            weights: values.clone().narrow(1, 0, self.num_joints),
+            distance: values.narrow(1, self.num_joints, 1),
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::device::cpu_device;
+    use crate::geometry::skinning::points_tensor;
+    use crate::tensor::to_host;
+
+    /// A volume whose every channel is an affine function of the node position, so trilinear interpolation
+    /// reproduces it exactly inside the box.
+    fn affine_volume() -> BlendWeightVolume {
+        let bounds = Aabb {
+            min: Vec3::new(-0.5, -1.0, -0.2),
+            max: Vec3::new(0.5, 0.8, 0.3),
+        };
+        let dims = [5, 7, 3];
+        let k = 2;
+        let mut v = BlendWeightVolume::new(bounds, dims, k, vec![0.0; 5 * 7 * 3 * 3]).unwrap();
+        let mut data = Vec::new();
+        for i in 0..dims[0] {
+            for j in 0..dims[1] {
+                for l in 0..dims[2] {
+                    data.extend(affine(v.node_position(i, j, l)));
+                }
+            }
+        }
+        v.data = data;
+        v
+    }
+
+    fn affine(p: Vec3) -> [f32; 3] {
+        [
+            0.3 + 0.2 * p.x - 0.1 * p.y,
+            0.7 - 0.2 * p.x + 0.1 * p.y,
+            1.0 + p.x + 2.0 * p.y - 3.0 * p.z,
+        ]
+    }
+
+    #[test]
+    fn trilinear_lookup_reproduces_affine_fields_and_clamps_outside() {
+        let v = affine_volume();
+        let pts = [
+            Vec3::new(0.1, 0.2, 0.05),
+            Vec3::new(-0.49, 0.79, -0.19),
+            Vec3::new(0.33, -0.6, 0.12),
+        ];
+        for p in pts {
+            let got = v.sample(p);
+            for (g, e) in got.iter().zip(affine(p)) {
+                assert!((g - e).abs() < 1e-5, "{p}: {got:?}");
+            }
+        }
+        // Outside: the border value, i.e. the value at the clamped point.
+        let outside = Vec3::new(2.0, -3.0, 0.1);
+        let clamped = outside.clamp(v.bounds.min, v.bounds.max);
+        assert_eq!(v.sample(outside), v.sample(clamped));
+        let tensor = v.to_tensor(&cpu_device());
+        let all: Vec<Vec3> = pts.iter().copied().chain([outside]).collect();
+        let s = tensor.sample(points_tensor(&all, &cpu_device()));
+        let (w, d) = (to_host(s.weights), to_host(s.distance));
+        for (i, p) in all.iter().enumerate() {
+            let e = v.sample(*p);
+            assert!(
+                (w[2 * i] - e[0]).abs() < 1e-5
+                    && (w[2 * i + 1] - e[1]).abs() < 1e-5
+                    && (d[i] - e[2]).abs() < 1e-5
+            );
+        }
+    }
+
+    #[test]
+    fn lookup_gradient_follows_the_field() {
+        let v = affine_volume();
+        let device = cpu_device().autodiff();
+        let p = points_tensor(&[Vec3::new(0.1, 0.2, 0.05)], &device).require_grad();
+        let grads = v
+            .to_tensor(&device)
+            .sample(p.clone())
+            .distance
+            .sum()
+            .backward();
+        let g = to_host(p.grad(&grads).unwrap());
+        for (a, b) in g.iter().zip([1.0, 2.0, -3.0]) {
+            assert!((a - b).abs() < 1e-4, "{g:?}");
+        }
+    }
+
+    #[test]
+    fn malformed_volumes_are_rejected() {
+        let b = Aabb {
+            min: Vec3::ZERO,
+            max: Vec3::ONE,
+        };
+        assert!(BlendWeightVolume::new(b, [2, 2, 2], 1, vec![0.0; 15])
+            .unwrap_err()
+            .contains("16"));
+        assert!(BlendWeightVolume::new(b, [2, 2, 2], 1, vec![f32::NAN; 16])
+            .unwrap_err()
+            .contains("finite"));
+        let flat = Aabb {
+            min: Vec3::ZERO,
+            max: Vec3::new(1.0, 0.0, 1.0),
+        };
+        assert!(BlendWeightVolume::new(flat, [2, 2, 2], 1, vec![0.0; 16]).is_err());
+    }
+}

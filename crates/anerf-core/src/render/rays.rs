@@ -1,0 +1,116 @@
+//! Batches of camera rays, the renderer's input.
+
+use burn::prelude::*;
+
+use crate::geometry::{Aabb, Ray};
+use crate::ids::{FrameId, ViewId};
+use crate::tensor::from_rows;
+
+/// Rays of one image (one frame seen from one view) on the host, before upload.
+///
+/// All rays hit the frame's box: `near < far` (metres along the unit world-space direction).
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct HostRays {
+    pub origins: Vec<[f32; 3]>,
+    pub directions: Vec<[f32; 3]>,
+    pub near: Vec<f32>,
+    pub far: Vec<f32>,
+    /// Target colour in `[0, 1]` per ray (empty when rendering without ground truth).
+    pub colors: Vec<[f32; 3]>,
+    /// Pixel `(column, row)` of each ray in its image, for writing renders back.
+    pub pixels: Vec<[u32; 2]>,
+}
+
+impl HostRays {
+    /// Intersects `rays` with `bounds` and keeps the hits; returns the rays and the indices that hit.
+    pub fn from_rays(rays: &[Ray], bounds: &Aabb) -> (Self, Vec<usize>) {
+        let mut out = Self::default();
+        let mut kept = Vec::new();
+        for (i, ray) in rays.iter().enumerate() {
+            if let Some(hit) = bounds.intersect(ray) {
+                out.origins.push(ray.origin.to_array());
+                out.directions.push(ray.direction.to_array());
+                out.near.push(hit.near);
+                out.far.push(hit.far);
+                kept.push(i);
+            }
+        }
+        (out, kept)
+    }
+
+    /// Number of rays.
+    pub fn len(&self) -> usize {
+        self.near.len()
+    }
+
+    /// True when there are no rays.
+    pub fn is_empty(&self) -> bool {
+        self.near.is_empty()
+    }
+
+    /// The rays `range` as a new batch (for rendering in chunks).
+    pub fn slice(&self, range: std::ops::Range<usize>) -> Self {
+        let part = |v: &[[f32; 3]]| {
+            if v.is_empty() {
+                Vec::new()
+            } else {
+                v[range.clone()].to_vec()
+            }
+        };
+        Self {
+            origins: self.origins[range.clone()].to_vec(),
+            directions: self.directions[range.clone()].to_vec(),
+            near: self.near[range.clone()].to_vec(),
+            far: self.far[range.clone()].to_vec(),
+            colors: part(&self.colors),
+            pixels: if self.pixels.is_empty() {
+                Vec::new()
+            } else {
+                self.pixels[range].to_vec()
+            },
+        }
+    }
+}
+
+/// Rays of one image on a device: the unit of work of [`crate`]'s renderer.
+#[derive(Debug, Clone)]
+pub struct RayBatch {
+    pub frame: FrameId,
+    pub view: ViewId,
+    /// `[R, 3]` world-space origins (metres).
+    pub origins: Tensor<2>,
+    /// `[R, 3]` world-space unit directions.
+    pub directions: Tensor<2>,
+    /// `[R]` entry and exit depths (metres).
+    pub near: Tensor<1>,
+    pub far: Tensor<1>,
+    /// `[R, 3]` target colours, when known.
+    pub colors: Option<Tensor<2>>,
+}
+
+impl RayBatch {
+    /// Uploads `rays` of `frame` seen from `view`.
+    pub fn new(rays: &HostRays, frame: FrameId, view: ViewId, device: &Device) -> Self {
+        let n = rays.len();
+        let flat = |v: &[[f32; 3]]| v.iter().flatten().copied().collect::<Vec<f32>>();
+        Self {
+            frame,
+            view,
+            origins: from_rows(&flat(&rays.origins), n, 3, device),
+            directions: from_rows(&flat(&rays.directions), n, 3, device),
+            near: Tensor::from_floats(rays.near.as_slice(), device),
+            far: Tensor::from_floats(rays.far.as_slice(), device),
+            colors: (!rays.colors.is_empty()).then(|| from_rows(&flat(&rays.colors), n, 3, device)),
+        }
+    }
+
+    /// Number of rays `R`.
+    pub fn len(&self) -> usize {
+        self.near.dims()[0]
+    }
+
+    /// True when the batch holds no rays.
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+}

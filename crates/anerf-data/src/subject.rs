@@ -1,0 +1,119 @@
+//! One captured person: calibrated cameras, per-frame images, masks and poses, and the body model.
+//! Every loader (ZJU-MoCap, Human3.6M, synthetic) produces this type.
+
+use std::path::PathBuf;
+
+use anerf_core::geometry::{Camera, Pose, Skeleton};
+use anerf_core::FrameId;
+use glam::Vec3;
+use serde::{Deserialize, Serialize};
+
+/// Which layout a subject was read from.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum DatasetKind {
+    ZjuMocap,
+    H36m,
+    Synthetic,
+}
+
+/// A multi-view video of one person, as calibrated and fitted.
+#[derive(Debug, Clone)]
+pub struct Subject {
+    pub name: String,
+    /// The dataset folder (e.g. `data/zju_mocap/CoreView_313`).
+    pub root: PathBuf,
+    pub kind: DatasetKind,
+    /// Cameras in the dataset's order (index = [`anerf_core::ViewId`]), at the stored image resolution, with
+    /// their lens distortion; `T` in metres.
+    pub cameras: Vec<Camera>,
+    /// Frames in the dataset's order (index = [`FrameId`]).
+    pub frames: Vec<FrameRecord>,
+    pub body: BodyModel,
+    /// What the loader had to fall back on (e.g. `params/` instead of `new_params/`), for `anerf info`.
+    pub notes: Vec<String>,
+}
+
+/// One time step: an image and a mask per camera, and the fitted body pose.
+#[derive(Debug, Clone)]
+pub struct FrameRecord {
+    pub id: FrameId,
+    /// The `{i}` of `new_params/{i}.npy`, `new_vertices/{i}.npy` and `bweights/{i}.npy` (starts at 1 for
+    /// ZJU-MoCap 313/315).
+    pub file_index: usize,
+    /// Absolute image path per camera.
+    pub images: Vec<PathBuf>,
+    /// Absolute mask path per camera (non-zero = foreground).
+    pub masks: Vec<PathBuf>,
+    pub pose: Pose,
+    /// Posed body-model vertices in world space (metres), `new_vertices/{i}.npy`.
+    pub vertices: PathBuf,
+}
+
+/// The subject's body model in canonical space.
+#[derive(Debug, Clone)]
+pub struct BodyModel {
+    pub skeleton: Skeleton,
+    /// Canonical (T-pose) vertices, metres (`lbs/tvertices.npy`).
+    pub canonical_vertices: Vec<Vec3>,
+    /// Triangles as vertex indices (counter-clockwise seen from outside).
+    pub faces: Vec<[u32; 3]>,
+    pub weights: SkinningWeights,
+}
+
+/// Per-vertex skinning weights, `V × K` row-major, rows summing to 1.
+#[derive(Debug, Clone, PartialEq)]
+pub struct SkinningWeights {
+    num_joints: usize,
+    data: Vec<f32>,
+}
+
+impl SkinningWeights {
+    /// Validates `V × K` weights: finite, non-negative, rows summing to 1 within 1e-3.
+    pub fn new(data: Vec<f32>, num_joints: usize) -> Result<Self, String> {
+        if num_joints == 0 || !data.len().is_multiple_of(num_joints) {
+            return Err(format!(
+                "{} weights do not form rows of {num_joints} joints",
+                data.len()
+            ));
+        }
+        for (v, row) in data.chunks_exact(num_joints).enumerate() {
+            anerf_core::geometry::validate_weights(row, num_joints)
+                .map_err(|e| format!("vertex {v}: {e}"))?;
+        }
+        Ok(Self { num_joints, data })
+    }
+
+    /// Number of joints `K`.
+    pub fn num_joints(&self) -> usize {
+        self.num_joints
+    }
+
+    /// Number of vertices `V`.
+    pub fn num_vertices(&self) -> usize {
+        self.data.len() / self.num_joints
+    }
+
+    /// Weights of vertex `v`.
+    pub fn row(&self, v: usize) -> &[f32] {
+        &self.data[v * self.num_joints..(v + 1) * self.num_joints]
+    }
+
+    /// All weights, row-major.
+    pub fn as_slice(&self) -> &[f32] {
+        &self.data
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn weights_are_validated_per_row() {
+        assert!(SkinningWeights::new(vec![0.5, 0.5, 1.0, 0.0], 2).is_ok());
+        let err = SkinningWeights::new(vec![0.5, 0.5, 0.7, 0.0], 2).unwrap_err();
+        assert!(err.contains("vertex 1"), "{err}");
+        assert!(SkinningWeights::new(vec![0.5, 0.5, 1.0], 2).is_err());
+    }
+}
