@@ -56,6 +56,33 @@ impl BlendWeightVolume {
         })
     }
 
+    /// Evaluates `node_values` (the `K + 1` channels at a position) at every node of a `dims` grid over
+    /// `bounds`.
+    pub fn from_fn(
+        bounds: Aabb,
+        dims: [usize; 3],
+        num_joints: usize,
+        node_values: impl Fn(Vec3) -> Vec<f32>,
+    ) -> Result<Self, String> {
+        let nodes = dims.iter().product::<usize>();
+        let mut volume = Self {
+            bounds,
+            dims,
+            num_joints,
+            data: Vec::with_capacity(nodes * (num_joints + 1)),
+        };
+        for i in 0..dims[0] {
+            for j in 0..dims[1] {
+                for k in 0..dims[2] {
+                    volume
+                        .data
+                        .extend(node_values(volume.node_position(i, j, k)));
+                }
+            }
+        }
+        Self::new(bounds, dims, num_joints, volume.data)
+    }
+
     /// Channels per node (`K + 1`).
     pub fn channels(&self) -> usize {
         self.num_joints + 1
@@ -229,19 +256,7 @@ mod tests {
             min: Vec3::new(-0.5, -1.0, -0.2),
             max: Vec3::new(0.5, 0.8, 0.3),
         };
-        let dims = [5, 7, 3];
-        let k = 2;
-        let mut v = BlendWeightVolume::new(bounds, dims, k, vec![0.0; 5 * 7 * 3 * 3]).unwrap();
-        let mut data = Vec::new();
-        for i in 0..dims[0] {
-            for j in 0..dims[1] {
-                for l in 0..dims[2] {
-                    data.extend(affine(v.node_position(i, j, l)));
-                }
-            }
-        }
-        v.data = data;
-        v
+        BlendWeightVolume::from_fn(bounds, [5, 7, 3], 2, |p| affine(p).to_vec()).unwrap()
     }
 
     fn affine(p: Vec3) -> [f32; 3] {

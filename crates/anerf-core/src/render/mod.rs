@@ -1,7 +1,11 @@
-//! Volume rendering: depth samples along rays (and, with the model, compositing and losses).
+//! Volume rendering: depth samples along rays, compositing and the training losses.
 
+pub mod composite;
+pub mod loss;
 pub mod rays;
 pub mod sampling;
 
+pub use composite::{composite, Composited};
+pub use loss::{blend_consistency, color_mse, psnr_from_mse};
 pub use rays::{HostRays, RayBatch};
 pub use sampling::stratified_depths;

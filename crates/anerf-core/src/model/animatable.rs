@@ -1,0 +1,349 @@
+//! The composed model: canonical NeRF, neural blend weight fields and latent codes, and the renderer that
+//! turns a ray batch of one frame into colours (paper §3, REFERENCE.md §3.2).
+
+use burn::prelude::*;
+use burn::tensor::IndexingUpdateOp;
+
+use super::blend::BlendWeightField;
+use super::encoding::PositionalEncoding;
+use super::nerf::CanonicalNerf;
+use super::{ConsistencyLoss, ModelConfig};
+use crate::body::VolumeTensor;
+use crate::geometry::skinning::{world_to_pose, BoneMatrices};
+use crate::geometry::{Aabb, GlobalTransform};
+use crate::render::{blend_consistency, composite, stratified_depths, RayBatch};
+use crate::tensor::to_host;
+
+/// How many frames and joints the model is built for.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct ModelSizes {
+    /// Training frames: appearance codes ℓ and blend codes ψ (plus the canonical ψ).
+    pub training_frames: usize,
+    /// Joints `K` of the skeleton.
+    pub joints: usize,
+}
+
+/// Which blend-weight code a frame uses.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum FrameCode {
+    /// Training frame `f` (row `f + 1` of the stage-1 field).
+    Training(usize),
+    /// Novel-pose frame `j` (row `j` of the stage-2 field).
+    Novel(usize),
+}
+
+/// Everything the renderer needs about one frame, on the device.
+#[derive(Debug, Clone)]
+pub struct FrameInputs {
+    /// Bone transforms `A_k` (canonical → pose space).
+    pub bones: BoneMatrices,
+    /// World ↔ pose space.
+    pub global: GlobalTransform,
+    /// Pose-space blend-weight volume of the frame (`w^s` and distance to the body).
+    pub volume: VolumeTensor,
+    pub code: FrameCode,
+    /// Row of the appearance codes ℓ.
+    pub appearance: usize,
+}
+
+/// The canonical body: its blend-weight volume and its box (T-pose vertices ± padding, metres).
+#[derive(Debug, Clone)]
+pub struct CanonicalInputs {
+    pub volume: VolumeTensor,
+    pub bounds: Aabb,
+}
+
+/// Render results of one ray batch.
+#[derive(Debug, Clone)]
+pub struct RenderOutput {
+    /// `[R, 3]` colour on black.
+    pub rgb: Tensor<2>,
+    /// `[R]` accumulated opacity.
+    pub acc: Tensor<1>,
+    /// `[R]` expected depth, metres.
+    pub depth: Tensor<1>,
+    /// Observation and canonical blend weights on the surviving samples (when asked for).
+    pub consistency: Option<ConsistencyTerms>,
+    /// Samples evaluated by the MLPs / all samples, for statistics.
+    pub surviving_samples: usize,
+    pub total_samples: usize,
+}
+
+/// Inputs of the blend-weight consistency loss.
+#[derive(Debug, Clone)]
+pub struct ConsistencyTerms {
+    /// `[M, K]` `w_i(x)` of the frame.
+    pub observed: Tensor<2>,
+    /// `[M, K]` `w^can(x')` at the warped points.
+    pub canonical: Tensor<2>,
+    /// `[M, 1]` 1 where the sample counts: raw density > 0 inside the canonical box, plus the densest sample.
+    pub mask: Tensor<2>,
+}
+
+impl ConsistencyTerms {
+    /// The loss value of kind `kind`.
+    pub fn loss(&self, kind: ConsistencyLoss) -> Tensor<1> {
+        blend_consistency(
+            self.observed.clone(),
+            self.canonical.clone(),
+            self.mask.clone(),
+            kind,
+        )
+    }
+}
+
+/// Samples after warping to canonical space and shading.
+#[derive(Debug, Clone)]
+pub struct ShadedSamples {
+    /// `[M, 1]` raw density (zero outside the canonical box).
+    pub density: Tensor<2>,
+    /// `[M, 3]` colour.
+    pub rgb: Tensor<2>,
+    /// `[M, 3]` canonical positions.
+    pub canonical_points: Tensor<2>,
+    /// `[M, K]` observation-space blend weights.
+    pub weights: Tensor<2>,
+    /// `[M, 1]` true inside the canonical box.
+    pub inside: Tensor<2, Bool>,
+}
+
+/// Animatable NeRF: a canonical radiance field, one blend-weight field shared by the training frames and
+/// the canonical space, and (after stage 2) a field for novel poses.
+#[derive(Module, Debug)]
+pub struct AnimatableNerf {
+    pub nerf: CanonicalNerf,
+    pub blend: BlendWeightField,
+    pub novel_blend: Option<BlendWeightField>,
+    #[module(skip)]
+    config: ModelConfig,
+}
+
+impl AnimatableNerf {
+    /// A freshly initialised stage-1 model.
+    pub fn new(config: &ModelConfig, sizes: ModelSizes, device: &Device) -> Self {
+        Self {
+            nerf: CanonicalNerf::new(config, sizes.training_frames, device),
+            blend: BlendWeightField::new(config, sizes.training_frames + 1, sizes.joints, device),
+            novel_blend: None,
+            config: config.clone(),
+        }
+    }
+
+    /// The configuration the model was built with.
+    pub fn config(&self) -> &ModelConfig {
+        &self.config
+    }
+
+    /// Adds a fresh stage-2 field for `novel_frames` poses and freezes every stage-1 parameter.
+    pub fn with_novel_field(self, novel_frames: usize, device: &Device) -> Self {
+        let joints = self.blend.num_joints();
+        Self {
+            novel_blend: Some(BlendWeightField::new(
+                &self.config,
+                novel_frames,
+                joints,
+                device,
+            )),
+            ..self.freeze_stage1()
+        }
+    }
+
+    /// Marks the canonical NeRF and the stage-1 blend field as constants (no gradients).
+    pub fn freeze_stage1(self) -> Self {
+        Self {
+            nerf: self.nerf.no_grad(),
+            blend: self.blend.no_grad(),
+            ..self
+        }
+    }
+
+    fn xyz_encoding(&self) -> PositionalEncoding {
+        PositionalEncoding {
+            frequencies: self.config.xyz_frequencies,
+        }
+    }
+
+    fn dir_encoding(&self) -> PositionalEncoding {
+        PositionalEncoding {
+            frequencies: self.config.dir_frequencies,
+        }
+    }
+
+    /// The field and row that give frame weights for `code`.
+    fn frame_field(&self, code: FrameCode) -> (&BlendWeightField, usize) {
+        match code {
+            FrameCode::Training(f) => (&self.blend, f + 1),
+            FrameCode::Novel(j) => (
+                self.novel_blend
+                    .as_ref()
+                    .expect("novel-pose frames need the stage-2 field (run `anerf animate`)"),
+                j,
+            ),
+        }
+    }
+
+    /// Canonical blend weights `w^can` at canonical points `[M, 3]`.
+    pub fn canonical_weights(&self, points: Tensor<2>, canonical: &CanonicalInputs) -> Tensor<2> {
+        let prior = canonical.volume.sample(points.clone()).weights;
+        if !self.config.neural_blend_weights {
+            return self.blend.prior_only(prior);
+        }
+        self.blend
+            .forward(self.xyz_encoding().encode(points), 0, prior)
+    }
+
+    /// Frame blend weights `w_i` at pose-space points `[M, 3]` with their prior `[M, K]`.
+    pub fn frame_weights(&self, points: Tensor<2>, prior: Tensor<2>, code: FrameCode) -> Tensor<2> {
+        let (field, row) = self.frame_field(code);
+        if !self.config.neural_blend_weights {
+            return field.prior_only(prior);
+        }
+        field.forward(self.xyz_encoding().encode(points), row, prior)
+    }
+
+    /// Raw canonical density at canonical points `[M, 3]`, zero outside the canonical box.
+    pub fn canonical_density(&self, points: Tensor<2>, canonical: &CanonicalInputs) -> Tensor<2> {
+        let inside = inside_box(points.clone(), &canonical.bounds);
+        self.nerf
+            .density(self.xyz_encoding().encode(points))
+            .mask_fill(inside.bool_not(), 0.0)
+    }
+
+    /// Warps pose-space samples `[M, 3]` (prior weights `[M, K]`, world view directions `[M, 3]`) to canonical
+    /// space with the frame's neural blend weights and shades them with the canonical NeRF.
+    pub fn shade(
+        &self,
+        points: Tensor<2>,
+        prior: Tensor<2>,
+        dirs: Tensor<2>,
+        frame: &FrameInputs,
+        canonical: &CanonicalInputs,
+    ) -> ShadedSamples {
+        let weights = self.frame_weights(points.clone(), prior, frame.code);
+        let canonical_points = frame.bones.inverse(points, weights.clone());
+        let inside = inside_box(canonical_points.clone(), &canonical.bounds);
+        let radiance = self.nerf.forward(
+            self.xyz_encoding().encode(canonical_points.clone()),
+            self.dir_encoding().encode(dirs),
+            frame.appearance,
+        );
+        ShadedSamples {
+            density: radiance.density.mask_fill(inside.clone().bool_not(), 0.0),
+            rgb: radiance.rgb,
+            canonical_points,
+            weights,
+            inside,
+        }
+    }
+
+    /// Renders `rays` of one frame. `jitter` (`[R, S]` uniform in `[0, 1)`) perturbs the depths when training;
+    /// `with_consistency` also returns the inputs of the blend-weight consistency loss.
+    ///
+    /// Samples whose distance to the body (the frame volume's last channel) is at least `cull_distance` never
+    /// reach an MLP: the survivors are gathered, shaded and scattered back; culled samples have zero density.
+    /// The sample closest to the body is always kept, so the MLP batch is never empty.
+    pub fn render(
+        &self,
+        rays: &RayBatch,
+        frame: &FrameInputs,
+        canonical: &CanonicalInputs,
+        jitter: Option<Tensor<2>>,
+        with_consistency: bool,
+    ) -> RenderOutput {
+        let device = rays.origins.device();
+        let s = self.config.samples_per_ray;
+        let r = rays.len();
+        let n = r * s;
+        let depths = stratified_depths(rays.near.clone(), rays.far.clone(), s, jitter);
+        let points_world = (rays.origins.clone().unsqueeze_dim::<3>(1)
+            + rays.directions.clone().unsqueeze_dim::<3>(1) * depths.clone().unsqueeze_dim::<3>(2))
+        .reshape([n, 3]);
+        let points = world_to_pose(points_world, &frame.global);
+        let dirs = rays
+            .directions
+            .clone()
+            .unsqueeze_dim::<3>(1)
+            .repeat_dim(1, s)
+            .reshape([n, 3]);
+        let prior = frame.volume.sample(points.clone());
+
+        let keep = surviving_indices(&to_host(prior.distance.clone()), self.config.cull_distance);
+        let m = keep.len();
+        let index = Tensor::<1, Int>::from_data(TensorData::new(keep, [m]), &device);
+        let shaded = self.shade(
+            points.select(0, index.clone()),
+            prior.weights.select(0, index.clone()),
+            dirs.select(0, index.clone()),
+            frame,
+            canonical,
+        );
+
+        let consistency = with_consistency.then(|| ConsistencyTerms {
+            observed: shaded.weights.clone(),
+            canonical: self.canonical_weights(shaded.canonical_points.clone(), canonical),
+            mask: consistency_mask(shaded.density.clone()),
+        });
+        let density = Tensor::<2>::zeros([n, 1], &device).select_assign(
+            0,
+            index.clone(),
+            shaded.density,
+            IndexingUpdateOp::Add,
+        );
+        let rgb = Tensor::<2>::zeros([n, 3], &device).select_assign(
+            0,
+            index,
+            shaded.rgb,
+            IndexingUpdateOp::Add,
+        );
+        let out = composite(density.reshape([r, s]), rgb.reshape([r, s, 3]), depths);
+        RenderOutput {
+            rgb: out.rgb,
+            acc: out.acc,
+            depth: out.depth,
+            consistency,
+            surviving_samples: m,
+            total_samples: n,
+        }
+    }
+}
+
+/// Indices of samples closer than `threshold` to the body; the closest sample is always included.
+pub fn surviving_indices(distance: &[f32], threshold: f32) -> Vec<i64> {
+    let mut keep: Vec<i64> = (0..distance.len())
+        .filter(|&i| distance[i] < threshold)
+        .map(|i| i as i64)
+        .collect();
+    if keep.is_empty() {
+        if let Some((closest, _)) = distance
+            .iter()
+            .enumerate()
+            .min_by(|a, b| a.1.total_cmp(b.1))
+        {
+            keep.push(closest as i64);
+        }
+    }
+    keep
+}
+
+/// `[M, 1]` bool: the point lies inside `bounds` (inclusive).
+pub fn inside_box(points: Tensor<2>, bounds: &Aabb) -> Tensor<2, Bool> {
+    let device = points.device();
+    let min = Tensor::<2>::from_floats([bounds.min.to_array()], &device);
+    let max = Tensor::<2>::from_floats([bounds.max.to_array()], &device);
+    let lower = (points.clone() - min).min_dim(1).greater_equal_elem(0.0);
+    let upper = (max - points).min_dim(1).greater_equal_elem(0.0);
+    lower.bool_and(upper)
+}
+
+/// `[M, 1]` float mask: raw density > 0 (the reference's `train_th = 0`), plus the densest sample.
+pub fn consistency_mask(density: Tensor<2>) -> Tensor<2> {
+    let density = density.detach();
+    let [m, _] = density.dims();
+    let device = density.device();
+    let positive = density.clone().greater_elem(0.0);
+    let densest = density.argmax(0).repeat_dim(0, m);
+    let is_densest = Tensor::<1, Int>::arange(0..m as i64, &device)
+        .reshape([m, 1])
+        .equal(densest);
+    positive.bool_or(is_densest).float()
+}

@@ -1,0 +1,218 @@
+//! Model configuration with named presets: the paper's sizes and smaller CPU sizes, same code.
+
+use serde::{Deserialize, Serialize};
+
+/// How the neural blend weight field combines its MLP output `F` with the body-model prior `w^s`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum BlendParameterisation {
+    /// `softmax(log(w^s + 1e-9) + F)`, the authors' code (a multiplicative correction of the prior).
+    #[default]
+    LogSoftmax,
+    /// `norm(exp(F) + w^s)`, the paper's text.
+    ExpNorm,
+}
+
+/// The blend-weight consistency loss between `w_i(x)` and `w^can(x')`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum ConsistencyLoss {
+    /// Smooth-L1 with β = 1 (PyTorch's default), the authors' code; ≈ 0.5·MSE since |Δw| < 1.
+    #[default]
+    SmoothL1,
+    /// Mean absolute difference, the paper's text.
+    L1,
+}
+
+/// Every size and switch of the model and its renderer.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ModelConfig {
+    /// Hidden width of the NeRF and blend-weight trunks (256 in the paper).
+    pub width: usize,
+    /// Number of hidden layers of each trunk (8 in the paper).
+    pub depth: usize,
+    /// Layer after which the input is re-joined (4 in the paper); `None` for none.
+    pub skip: Option<usize>,
+    /// Positional-encoding frequencies for points (10) and view directions (4).
+    pub xyz_frequencies: usize,
+    pub dir_frequencies: usize,
+    /// Size of the blend-weight latent codes ψ (128).
+    pub blend_code_dim: usize,
+    /// Size of the appearance codes ℓ (128).
+    pub appearance_code_dim: usize,
+    /// Samples per ray (64).
+    pub samples_per_ray: usize,
+    /// Samples farther than this from the body (metres, distance channel of the frame's volume) are culled.
+    pub cull_distance: f32,
+    pub blend: BlendParameterisation,
+    pub consistency: ConsistencyLoss,
+    /// `false` drops the learned residual and warps with the body model's weights alone (the paper's
+    /// "SMPL blend weights" ablation).
+    #[serde(default = "default_true")]
+    pub neural_blend_weights: bool,
+}
+
+fn default_true() -> bool {
+    true
+}
+
+/// A named preset.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
+#[serde(rename_all = "snake_case")]
+pub enum ModelPreset {
+    /// The paper: 8×256 trunks, skip at 4, 10/4 frequencies, 128-d codes, 64 samples.
+    Paper,
+    /// A CPU-sized model: 4×128, skip at 2, 8/4 frequencies, 32-d codes, 48 samples.
+    #[default]
+    Cpu,
+    /// For tests: 2×32, no skip, 4/2 frequencies, 8-d codes, 16 samples.
+    Tiny,
+}
+
+impl ModelPreset {
+    /// Every preset, as listed to users.
+    pub const ALL: [ModelPreset; 3] = [ModelPreset::Paper, ModelPreset::Cpu, ModelPreset::Tiny];
+
+    /// The preset's name in configs and on the command line.
+    pub fn name(self) -> &'static str {
+        match self {
+            ModelPreset::Paper => "paper",
+            ModelPreset::Cpu => "cpu",
+            ModelPreset::Tiny => "tiny",
+        }
+    }
+
+    /// The configuration.
+    pub fn config(self) -> ModelConfig {
+        let base = ModelConfig {
+            width: 256,
+            depth: 8,
+            skip: Some(4),
+            xyz_frequencies: 10,
+            dir_frequencies: 4,
+            blend_code_dim: 128,
+            appearance_code_dim: 128,
+            samples_per_ray: 64,
+            cull_distance: 0.05,
+            blend: BlendParameterisation::LogSoftmax,
+            consistency: ConsistencyLoss::SmoothL1,
+            neural_blend_weights: true,
+        };
+        match self {
+            ModelPreset::Paper => base,
+            ModelPreset::Cpu => ModelConfig {
+                width: 128,
+                depth: 4,
+                skip: Some(2),
+                xyz_frequencies: 8,
+                blend_code_dim: 32,
+                appearance_code_dim: 32,
+                samples_per_ray: 48,
+                ..base
+            },
+            ModelPreset::Tiny => ModelConfig {
+                width: 32,
+                depth: 2,
+                skip: None,
+                xyz_frequencies: 4,
+                dir_frequencies: 2,
+                blend_code_dim: 8,
+                appearance_code_dim: 8,
+                samples_per_ray: 16,
+                ..base
+            },
+        }
+    }
+}
+
+impl std::str::FromStr for ModelPreset {
+    type Err = String;
+
+    fn from_str(s: &str) -> Result<Self, String> {
+        Self::ALL
+            .into_iter()
+            .find(|p| p.name() == s)
+            .ok_or_else(|| {
+                let names: Vec<_> = Self::ALL.iter().map(|p| p.name()).collect();
+                format!(
+                    "unknown model preset '{s}': expected one of {}",
+                    names.join(", ")
+                )
+            })
+    }
+}
+
+impl ModelConfig {
+    /// Checks every field; the error names the field and what is allowed.
+    pub fn validate(&self) -> Result<(), String> {
+        let positive = [
+            ("width", self.width),
+            ("depth", self.depth),
+            ("blend_code_dim", self.blend_code_dim),
+            ("appearance_code_dim", self.appearance_code_dim),
+            ("samples_per_ray", self.samples_per_ray),
+        ];
+        for (name, v) in positive {
+            if v == 0 {
+                return Err(format!("model.{name} = 0: expected a positive integer"));
+            }
+        }
+        if let Some(s) = self.skip {
+            if s + 1 >= self.depth {
+                return Err(format!(
+                    "model.skip = {s}: expected a layer index below depth − 1 = {}",
+                    self.depth - 1
+                ));
+            }
+        }
+        if self.xyz_frequencies > 16 || self.dir_frequencies > 16 {
+            return Err("model.xyz_frequencies / dir_frequencies: expected at most 16".into());
+        }
+        if self.samples_per_ray < 2 {
+            return Err(format!(
+                "model.samples_per_ray = {}: expected at least 2",
+                self.samples_per_ray
+            ));
+        }
+        if !(self.cull_distance.is_finite() && self.cull_distance > 0.0) {
+            return Err(format!(
+                "model.cull_distance = {}: expected a positive distance in metres",
+                self.cull_distance
+            ));
+        }
+        Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn presets_are_valid_and_named() {
+        for p in ModelPreset::ALL {
+            p.config().validate().unwrap();
+            assert_eq!(p.name().parse::<ModelPreset>().unwrap(), p);
+        }
+        let paper = ModelPreset::Paper.config();
+        assert_eq!(
+            (paper.width, paper.depth, paper.skip, paper.samples_per_ray),
+            (256, 8, Some(4), 64)
+        );
+        assert!("huge"
+            .parse::<ModelPreset>()
+            .unwrap_err()
+            .contains("paper, cpu, tiny"));
+    }
+
+    #[test]
+    fn invalid_values_name_the_field() {
+        let mut c = ModelPreset::Tiny.config();
+        c.skip = Some(1);
+        assert!(c.validate().unwrap_err().contains("model.skip"));
+        c = ModelPreset::Tiny.config();
+        c.cull_distance = f32::NAN;
+        assert!(c.validate().unwrap_err().contains("model.cull_distance"));
+    }
+}

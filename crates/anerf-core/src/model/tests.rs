@@ -1,0 +1,419 @@
+//! Tests of the composed model on a small analytic scene: a 4-joint body whose prior weights and distance
+//! to the body come from closed-form fields sampled onto volumes.
+
+use burn::module::{ModuleMapper, ModuleVisitor, Param, ParamId};
+use burn::optim::GradientsParams;
+use burn::prelude::*;
+use glam::Vec3;
+
+use super::*;
+use crate::body::BlendWeightVolume;
+use crate::device::cpu_device;
+use crate::geometry::skinning::{points_tensor, world_to_pose, BoneMatrices};
+use crate::geometry::{
+    inverse_lbs_point, Aabb, Camera, CanonicalPose, GlobalTransform, Pose, Skeleton,
+};
+use crate::render::{color_mse, composite, stratified_depths, HostRays, RayBatch};
+use crate::tensor::to_host;
+use crate::{FrameId, ViewId};
+
+const JOINTS: [[f32; 3]; 4] = [
+    [0.0, 0.0, 0.0],
+    [0.0, 0.3, 0.0],
+    [0.0, 0.6, 0.0],
+    [0.0, -0.3, 0.0],
+];
+
+/// Prior weights (a softmax of squared distances to the joints) and the distance outside an ellipsoid.
+fn analytic_node(p: Vec3) -> Vec<f32> {
+    let logits: Vec<f32> = JOINTS
+        .iter()
+        .map(|j| -(p - Vec3::from(*j)).length_squared() / 0.05)
+        .collect();
+    let max = logits.iter().cloned().fold(f32::MIN, f32::max);
+    let e: Vec<f32> = logits.iter().map(|l| (l - max).exp()).collect();
+    let s: f32 = e.iter().sum();
+    let mut out: Vec<f32> = e.iter().map(|v| v / s).collect();
+    let q = (p - Vec3::new(0.0, 0.15, 0.0)) / Vec3::new(0.2, 0.45, 0.15);
+    out.push(((q.length() - 1.0) * 0.15).max(0.0));
+    out
+}
+
+fn analytic_volume(bounds: Aabb) -> BlendWeightVolume {
+    BlendWeightVolume::from_fn(bounds, [9, 13, 7], 4, analytic_node).unwrap()
+}
+
+pub(crate) struct Scene {
+    pub frame: FrameInputs,
+    pub canonical: CanonicalInputs,
+    pub rays: RayBatch,
+    pub host_volume: BlendWeightVolume,
+    pub bones: crate::geometry::BoneTransforms,
+}
+
+fn scene(device: &Device, code: FrameCode) -> Scene {
+    let skeleton = Skeleton::from_parent_table(
+        JOINTS.iter().map(|j| Vec3::from(*j)).collect(),
+        &[-1, 0, 1, 0],
+    )
+    .unwrap();
+    let pose = Pose {
+        joint_rotations: vec![
+            Vec3::ZERO,
+            Vec3::new(0.0, 0.0, 0.4),
+            Vec3::new(0.3, 0.0, 0.0),
+            Vec3::new(-0.2, 0.1, 0.0),
+        ],
+        global: GlobalTransform {
+            rh: Vec3::new(0.0, 0.3, 0.0),
+            th: Vec3::new(0.1, 0.0, -0.1),
+        },
+    };
+    let bones = skeleton
+        .bone_transforms(&pose, CanonicalPose::TPose)
+        .unwrap();
+    let body = Aabb {
+        min: Vec3::new(-0.4, -0.6, -0.3),
+        max: Vec3::new(0.4, 0.9, 0.3),
+    };
+    let host_volume = analytic_volume(body);
+    let frame = FrameInputs {
+        bones: BoneMatrices::new(&bones, device),
+        global: pose.global,
+        volume: host_volume.to_tensor(device),
+        code,
+        appearance: 1,
+    };
+    let canonical = CanonicalInputs {
+        volume: host_volume.to_tensor(device),
+        bounds: body.padded(-0.05),
+    };
+    // An 8×8 image of a camera 2.5 m in front of the body (1 m field of view there), rays clipped to the
+    // world box.
+    let camera = Camera::from_rows(
+        [[20.0, 0.0, 3.5], [0.0, 20.0, 3.5], [0.0, 0.0, 1.0]],
+        [[-1.0, 0.0, 0.0], [0.0, -1.0, 0.0], [0.0, 0.0, 1.0]],
+        [0.0, 0.15, 2.5],
+        [0.0; 5],
+        8,
+        8,
+    )
+    .unwrap();
+    let world_box = Aabb {
+        min: body.min + pose.global.th - 0.2,
+        max: body.max + pose.global.th + 0.2,
+    };
+    let (mut host, _) = HostRays::from_rays(&camera.image_rays(Default::default()), &world_box);
+    host.colors = (0..host.len())
+        .map(|i| [0.1 * (i % 7) as f32, 0.5, 0.9 - 0.05 * (i % 5) as f32])
+        .collect();
+    let rays = RayBatch::new(&host, FrameId(1), ViewId(0), device);
+    Scene {
+        frame,
+        canonical,
+        rays,
+        host_volume,
+        bones,
+    }
+}
+
+/// A tiny model whose raw density is shifted up by 2 (through the bias of the one-output density head) so
+/// that the untrained field is visible: at PyTorch's initialisation the density is mostly negative.
+fn tiny_model(device: &Device) -> AnimatableNerf {
+    let mut config = ModelPreset::Tiny.config();
+    config.samples_per_ray = 12;
+    let model = AnimatableNerf::new(
+        &config,
+        ModelSizes {
+            training_frames: 3,
+            joints: 4,
+        },
+        device,
+    );
+    let mut list = ParamList(Vec::new());
+    model.nerf.visit(&mut list);
+    let density_bias = list
+        .0
+        .iter()
+        .find(|p| p.1 == 1)
+        .expect("the density head's bias")
+        .0;
+    model.map(&mut Nudge {
+        target: density_bias,
+        index: 0,
+        delta: 2.0,
+    })
+}
+
+/// Collects, for every float parameter, whether the gradients hold an entry and whether it is non-zero.
+struct GradientCheck<'a> {
+    grads: &'a GradientsParams,
+    found: Vec<(ParamId, bool)>,
+}
+
+impl ModuleVisitor for GradientCheck<'_> {
+    fn visit_float<const D: usize>(&mut self, param: &Param<Tensor<D>>) {
+        let nonzero = self
+            .grads
+            .get::<D>(param.id)
+            .map(|g| to_host(g.abs().sum())[0] > 0.0);
+        self.found.push((param.id, nonzero.unwrap_or(false)));
+    }
+}
+
+fn params_with_gradient<M: Module>(module: &M, grads: &GradientsParams) -> (usize, usize) {
+    let mut check = GradientCheck {
+        grads,
+        found: Vec::new(),
+    };
+    module.visit(&mut check);
+    (
+        check.found.iter().filter(|(_, g)| *g).count(),
+        check.found.len(),
+    )
+}
+
+#[test]
+fn stage1_gradients_reach_every_parameter() {
+    let device = cpu_device().autodiff();
+    device.seed(1);
+    let s = scene(&device, FrameCode::Training(1));
+    let model = tiny_model(&device);
+    let out = model.render(&s.rays, &s.frame, &s.canonical, None, true);
+    assert!(out.surviving_samples > 0 && out.surviving_samples < out.total_samples);
+    let loss = color_mse(out.rgb, s.rays.colors.clone().unwrap())
+        + out.consistency.unwrap().loss(model.config().consistency);
+    let grads = GradientsParams::from_grads(loss.backward(), &model);
+    let (with, total) = params_with_gradient(&model, &grads);
+    assert_eq!(
+        with, total,
+        "{with} of {total} parameters received a non-zero gradient"
+    );
+}
+
+#[test]
+fn stage2_trains_only_the_novel_field() {
+    let device = cpu_device().autodiff();
+    device.seed(2);
+    let s = scene(&device, FrameCode::Novel(1));
+    let model = tiny_model(&device).with_novel_field(2, &device);
+    let pose_points = points_tensor(
+        &grid_points(Vec3::new(-0.3, -0.5, -0.2), Vec3::new(0.3, 0.8, 0.2)),
+        &device,
+    );
+    let can_points = points_tensor(
+        &grid_points(s.canonical.bounds.min, s.canonical.bounds.max),
+        &device,
+    );
+    let loss = model.stage2_loss(&s.frame, &s.canonical, pose_points, can_points);
+    assert!(to_host(loss.total.clone())[0] > 0.0);
+    let grads = GradientsParams::from_grads(loss.total.backward(), &model);
+    let (nerf, nerf_total) = params_with_gradient(&model.nerf, &grads);
+    let (blend, _) = params_with_gradient(&model.blend, &grads);
+    assert_eq!(
+        (nerf, blend),
+        (0, 0),
+        "frozen stage-1 parameters received gradients"
+    );
+    assert!(nerf_total > 0);
+    let novel = model.novel_blend.as_ref().unwrap();
+    let (with, total) = params_with_gradient(novel, &grads);
+    assert_eq!(
+        with, total,
+        "{with} of {total} novel-field parameters received a gradient"
+    );
+}
+
+fn grid_points(min: Vec3, max: Vec3) -> Vec<Vec3> {
+    let n = 6;
+    let mut out = Vec::new();
+    for i in 0..n {
+        for j in 0..n {
+            for k in 0..n {
+                let t = Vec3::new(i as f32, j as f32, k as f32) / (n - 1) as f32;
+                out.push(min + (max - min) * t);
+            }
+        }
+    }
+    out
+}
+
+#[test]
+fn without_residual_the_warp_is_inverse_lbs_with_the_prior_weights() {
+    let device = cpu_device();
+    let mut s = scene(&device, FrameCode::Training(0));
+    s.frame.appearance = 0;
+    let mut config = ModelPreset::Tiny.config();
+    config.neural_blend_weights = false;
+    let model = AnimatableNerf::new(
+        &config,
+        ModelSizes {
+            training_frames: 1,
+            joints: 4,
+        },
+        &device,
+    );
+    let pts = grid_points(Vec3::new(-0.3, -0.5, -0.2), Vec3::new(0.3, 0.8, 0.2));
+    let p = points_tensor(&pts, &device);
+    let prior = s.frame.volume.sample(p.clone()).weights;
+    let shaded = model.shade(p.clone(), prior, p, &s.frame, &s.canonical);
+    let got = to_host(shaded.canonical_points);
+    for (i, x) in pts.iter().enumerate() {
+        let w = s.host_volume.sample(*x);
+        let sum: f32 = w[..4].iter().sum();
+        let w: Vec<f32> = w[..4].iter().map(|v| v / sum).collect();
+        let expect = inverse_lbs_point(*x, &w, &s.bones).unwrap();
+        assert!(
+            (Vec3::from_slice(&got[3 * i..3 * i + 3]) - expect).length() < 1e-4,
+            "{x}"
+        );
+    }
+}
+
+#[test]
+fn culling_matches_evaluating_every_sample_and_zeroing_the_far_ones() {
+    let device = cpu_device();
+    device.seed(3);
+    let s = scene(&device, FrameCode::Training(2));
+    let model = tiny_model(&device);
+    let culled = model.render(&s.rays, &s.frame, &s.canonical, None, false);
+
+    // Reference: shade all samples, then zero the density of those ≥ cull_distance from the body.
+    let samples = model.config().samples_per_ray;
+    let r = s.rays.len();
+    let depths = stratified_depths(s.rays.near.clone(), s.rays.far.clone(), samples, None);
+    let world = (s.rays.origins.clone().unsqueeze_dim::<3>(1)
+        + s.rays.directions.clone().unsqueeze_dim::<3>(1) * depths.clone().unsqueeze_dim::<3>(2))
+    .reshape([r * samples, 3]);
+    let pose = world_to_pose(world, &s.frame.global);
+    let dirs = s
+        .rays
+        .directions
+        .clone()
+        .unsqueeze_dim::<3>(1)
+        .repeat_dim(1, samples)
+        .reshape([r * samples, 3]);
+    let prior = s.frame.volume.sample(pose.clone());
+    let far = prior
+        .distance
+        .clone()
+        .greater_equal_elem(model.config().cull_distance);
+    let shaded = model.shade(pose, prior.weights, dirs, &s.frame, &s.canonical);
+    let density = shaded.density.mask_fill(far, 0.0).reshape([r, samples]);
+    let all = composite(density, shaded.rgb.reshape([r, samples, 3]), depths);
+
+    let (a, b) = (to_host(culled.rgb), to_host(all.rgb));
+    assert!(
+        a.iter().zip(&b).all(|(x, y)| (x - y).abs() < 1e-5),
+        "{a:?}\n{b:?}"
+    );
+    assert!(b.iter().any(|v| *v > 1e-3), "the scene renders something");
+}
+
+/// Adds `delta` to element `index` of the parameter `target`.
+struct Nudge {
+    target: ParamId,
+    index: usize,
+    delta: f32,
+}
+
+impl ModuleMapper for Nudge {
+    fn map_float<const D: usize>(&mut self, param: Param<Tensor<D>>) -> Param<Tensor<D>> {
+        if param.id != self.target {
+            return param;
+        }
+        let requires_grad = param.val().is_require_grad();
+        let (id, t, _) = param.consume();
+        let shape = t.shape();
+        let flat = t.detach().reshape([shape.num_elements()]);
+        let mut bump = vec![0.0f32; flat.dims()[0]];
+        bump[self.index] = self.delta;
+        let value = (flat.clone() + Tensor::<1>::from_floats(bump.as_slice(), &flat.device()))
+            .reshape(shape);
+        // A fresh leaf with the same id, so that it still receives gradients.
+        Param::initialized(
+            id,
+            if requires_grad {
+                value.detach().require_grad()
+            } else {
+                value
+            },
+        )
+    }
+}
+
+/// Every float parameter: id, element count and rank.
+struct ParamList(Vec<(ParamId, usize, usize)>);
+impl ModuleVisitor for ParamList {
+    fn visit_float<const D: usize>(&mut self, param: &Param<Tensor<D>>) {
+        self.0
+            .push((param.id, param.val().shape().num_elements(), D));
+    }
+}
+
+#[test]
+fn rendered_colour_gradients_match_finite_differences() {
+    let device = cpu_device().autodiff();
+    device.seed(4);
+    let s = scene(&device, FrameCode::Training(1));
+    let model = tiny_model(&device);
+    let weights = Tensor::<2>::from_floats([[0.7, -0.4, 1.1]], &device);
+    let objective = |m: &AnimatableNerf| {
+        (m.render(&s.rays, &s.frame, &s.canonical, None, false).rgb * weights.clone()).sum()
+    };
+    let grads = GradientsParams::from_grads(objective(&model).backward(), &model);
+    let mut list = ParamList(Vec::new());
+    model.visit(&mut list);
+    // A few parameters across the NeRF trunk, the colour head, the blend field and the codes.
+    let h = 1e-2f32;
+    let mut checked = 0;
+    for (id, numel, rank) in list.0.iter().copied().step_by(3) {
+        let index = numel / 2;
+        let analytic = match rank {
+            1 => grads.get::<1>(id).map(to_host),
+            _ => grads.get::<2>(id).map(to_host),
+        }
+        .map(|g| g[index]);
+        let Some(analytic) = analytic else { continue };
+        let eval = |delta| {
+            let nudged = model.clone().map(&mut Nudge {
+                target: id,
+                index,
+                delta,
+            });
+            to_host(objective(&nudged))[0] as f64
+        };
+        let fd = (eval(h) - eval(-h)) / (2.0 * h as f64);
+        let tol = 0.05 * fd.abs().max(analytic.abs() as f64) + 2e-4;
+        assert!(
+            (fd - analytic as f64).abs() < tol,
+            "param {checked}: fd {fd} vs autodiff {analytic}"
+        );
+        checked += 1;
+    }
+    assert!(checked >= 5, "checked {checked} parameters");
+}
+
+#[test]
+fn flex_and_ndarray_render_the_same_image() {
+    let flex = cpu_device();
+    flex.seed(5);
+    let model = tiny_model(&flex);
+    let on = |device: Device| {
+        let s = scene(&device, FrameCode::Training(0));
+        to_host(
+            model
+                .clone()
+                .to_device(&device)
+                .render(&s.rays, &s.frame, &s.canonical, None, false)
+                .rgb,
+        )
+    };
+    let a = on(flex.clone());
+    let b = on(crate::DeviceChoice::Ndarray.device().unwrap());
+    // Tolerance: f32 sums in a different order across backends.
+    assert!(
+        a.iter().zip(&b).all(|(x, y)| (x - y).abs() < 1e-5),
+        "{a:?}\n{b:?}"
+    );
+}
