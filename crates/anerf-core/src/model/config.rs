@@ -32,7 +32,8 @@ pub struct ModelConfig {
     pub width: usize,
     /// Number of hidden layers of each trunk (8 in the paper).
     pub depth: usize,
-    /// Layer after which the input is re-joined (4 in the paper); `None` for none.
+    /// Layer after which the input is re-joined (4 in the paper); absent for none.
+    #[serde(default)]
     pub skip: Option<usize>,
     /// Positional-encoding frequencies for points (10) and view directions (4).
     pub xyz_frequencies: usize,

@@ -1,0 +1,617 @@
+//! Experiment configuration: TOML files with inheritance (`base = "…"`), command-line overrides
+//! (`--set section.key=value`) and validation whose errors name the key and the allowed values.
+
+use std::path::{Path, PathBuf};
+
+use anerf_core::model::{ModelConfig, ModelPreset};
+use anerf_core::DeviceChoice;
+use serde::{Deserialize, Serialize};
+use toml::{Table, Value};
+
+/// Errors while reading, merging or validating a configuration.
+#[derive(Debug, thiserror::Error)]
+pub enum ConfigError {
+    #[error("cannot read config {path}: {source}")]
+    Read {
+        path: PathBuf,
+        source: std::io::Error,
+    },
+    #[error("config {path} is not valid TOML: {message}")]
+    Parse { path: PathBuf, message: String },
+    #[error("config {path}: `base` chain loops back to {again}")]
+    BaseCycle { path: PathBuf, again: PathBuf },
+    #[error("override `{0}` is not of the form section.key=value")]
+    BadOverride(String),
+    #[error("invalid config: {0}")]
+    Invalid(String),
+}
+
+/// A half-open range of frame indices `start..end` stepping by `step`, written `"start:end"` or
+/// `"start:end:step"` in configs and on the command line.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct FrameRange {
+    pub start: usize,
+    pub end: usize,
+    pub step: usize,
+}
+
+impl FrameRange {
+    /// The frame indices.
+    pub fn frames(&self) -> Vec<usize> {
+        (self.start..self.end).step_by(self.step.max(1)).collect()
+    }
+
+    /// Number of frames.
+    pub fn len(&self) -> usize {
+        self.frames().len()
+    }
+
+    /// True when the range holds no frame.
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+}
+
+impl std::str::FromStr for FrameRange {
+    type Err = String;
+
+    fn from_str(s: &str) -> Result<Self, String> {
+        let parts: Vec<&str> = s.split(':').collect();
+        let num = |p: &str| {
+            p.trim()
+                .parse::<usize>()
+                .map_err(|_| format!("'{s}' is not a frame range start:end[:step]"))
+        };
+        let range = match parts.as_slice() {
+            [a, b] => FrameRange {
+                start: num(a)?,
+                end: num(b)?,
+                step: 1,
+            },
+            [a, b, c] => FrameRange {
+                start: num(a)?,
+                end: num(b)?,
+                step: num(c)?,
+            },
+            _ => return Err(format!("'{s}' is not a frame range start:end[:step]")),
+        };
+        if range.end < range.start || range.step == 0 {
+            return Err(format!("'{s}': expected start ≤ end and a positive step"));
+        }
+        Ok(range)
+    }
+}
+
+impl std::fmt::Display for FrameRange {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        if self.step == 1 {
+            write!(f, "{}:{}", self.start, self.end)
+        } else {
+            write!(f, "{}:{}:{}", self.start, self.end, self.step)
+        }
+    }
+}
+
+impl Serialize for FrameRange {
+    fn serialize<S: serde::Serializer>(&self, s: S) -> Result<S::Ok, S::Error> {
+        s.serialize_str(&self.to_string())
+    }
+}
+
+impl<'de> Deserialize<'de> for FrameRange {
+    fn deserialize<D: serde::Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
+        String::deserialize(d)?
+            .parse()
+            .map_err(serde::de::Error::custom)
+    }
+}
+
+/// Dataset layouts anerf reads.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum DatasetFormat {
+    /// ZJU-MoCap (also the layout `anerf synth` writes).
+    ZjuMocap,
+    /// The processed Human3.6M layout of the authors.
+    H36m,
+}
+
+/// Which published frame ranges a subject config uses.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
+#[serde(rename_all = "snake_case")]
+pub enum RangeSet {
+    /// The ICCV configs of the paper.
+    #[default]
+    Iccv,
+    /// The TPAMI / Neural Body ranges.
+    Tpami,
+}
+
+/// Training and novel-pose frames of one range set.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct FrameSplit {
+    pub train_frames: FrameRange,
+    pub novel_pose_frames: FrameRange,
+}
+
+/// How blend-weight volumes are obtained.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
+#[serde(rename_all = "snake_case")]
+pub enum VolumeSource {
+    /// Nearest surface point with barycentric weights (the paper), computed by `anerf prepare`.
+    #[default]
+    Surface,
+    /// Nearest vertex (the reference's `bweights/`), computed by `anerf prepare`.
+    NearestVertex,
+    /// The dataset's own `lbs/tbw.npy` and `lbs/bweights/` files.
+    Dataset,
+}
+
+/// `[dataset]`: where the data is and which views and frames to use.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct DatasetConfig {
+    pub format: DatasetFormat,
+    /// The subject folder (relative paths are relative to the directory anerf runs in).
+    pub root: PathBuf,
+    /// Image scale factor applied after undistortion (0.5 for ZJU-MoCap, 1 for H36M).
+    pub ratio: f32,
+    pub train_views: Vec<usize>,
+    /// Views used for evaluation; empty means every view not used for training.
+    #[serde(default)]
+    pub test_views: Vec<usize>,
+    #[serde(default)]
+    pub ranges: RangeSet,
+    pub iccv: FrameSplit,
+    /// The TPAMI / Neural Body ranges (defaults to the ICCV ones where they agree).
+    #[serde(default)]
+    pub tpami: Option<FrameSplit>,
+    /// Every n-th frame of the ranges (5 for H36M).
+    #[serde(default = "one")]
+    pub frame_interval: usize,
+    #[serde(default)]
+    pub volumes: VolumeSource,
+    /// A body-model file (SMPL `.npz` or `.pkl`) when `lbs/` has no weights and faces.
+    #[serde(default)]
+    pub body_model: Option<PathBuf>,
+    /// Where `anerf prepare` writes its cache.
+    #[serde(default = "default_cache")]
+    pub cache: PathBuf,
+}
+
+fn one() -> usize {
+    1
+}
+
+fn default_cache() -> PathBuf {
+    PathBuf::from("cache")
+}
+
+impl DatasetConfig {
+    /// The frame split selected by `ranges`.
+    pub fn split(&self) -> &FrameSplit {
+        match (self.ranges, &self.tpami) {
+            (RangeSet::Tpami, Some(t)) => t,
+            _ => &self.iccv,
+        }
+    }
+}
+
+/// The learning-rate schedule.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
+#[serde(rename_all = "snake_case")]
+pub enum LrSchedule {
+    /// Exponential decay from `lr` to `lr_final` over the run (the paper).
+    #[default]
+    Paper,
+    /// `lr · 0.1^(epoch/1000)` with 500-iteration epochs (the authors' code).
+    Code,
+}
+
+/// `[train]` and `[animate]`: one optimisation stage.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct StageConfig {
+    pub iterations: usize,
+    /// Rays per batch (stage 1) or points per set (stage 2).
+    pub batch: usize,
+    pub lr: f64,
+    pub lr_final: f64,
+    #[serde(default)]
+    pub schedule: LrSchedule,
+    /// Gradient values are clipped to ±this (the code uses 40); 0 disables clipping.
+    pub grad_clip: f32,
+    pub checkpoint_every: usize,
+    pub validate_every: usize,
+    pub log_every: usize,
+}
+
+/// `[eval]`.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct EvalConfig {
+    /// Every n-th frame of a split is evaluated (30 on ZJU-MoCap, 6 on H36M).
+    pub frame_interval: usize,
+    /// Rays rendered per chunk.
+    pub chunk: usize,
+}
+
+/// A whole experiment, as resolved from its files and overrides.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ExperimentConfig {
+    pub name: String,
+    pub seed: u64,
+    pub device: DeviceChoice,
+    pub dataset: DatasetConfig,
+    pub model: ModelConfig,
+    pub train: StageConfig,
+    pub animate: StageConfig,
+    pub eval: EvalConfig,
+}
+
+/// Reads `path`, follows its `base` chain (paths relative to the file naming them), applies `overrides`
+/// (`section.key=value`, the value parsed as TOML or taken as a string), expands `[model] preset`, and
+/// validates.
+pub fn load(path: &Path, overrides: &[String]) -> Result<ExperimentConfig, ConfigError> {
+    let mut table = read_chain(path, &mut Vec::new())?;
+    for o in overrides {
+        apply_override(&mut table, o)?;
+    }
+    from_table(table)
+}
+
+/// Builds a config from an already merged table (defaults, presets, validation).
+pub fn from_table(mut table: Table) -> Result<ExperimentConfig, ConfigError> {
+    table.remove("base");
+    expand_model_preset(&mut table)?;
+    let config: ExperimentConfig = serde_path_to_error::deserialize(Value::Table(table))
+        .map_err(|e| ConfigError::Invalid(format!("{}: {}", e.path(), e.inner().message())))?;
+    validate(&config)?;
+    Ok(config)
+}
+
+/// The built-in defaults every config starts from (`configs/` files override them).
+pub fn defaults() -> Table {
+    toml::from_str(DEFAULTS).expect("built-in defaults are valid TOML")
+}
+
+const DEFAULTS: &str = r#"
+seed = 0
+device = "flex"
+
+[model]
+preset = "paper"
+
+[train]
+iterations = 200000
+batch = 1024
+lr = 5e-4
+lr_final = 5e-5
+schedule = "paper"
+grad_clip = 40.0
+checkpoint_every = 5000
+validate_every = 5000
+log_every = 100
+
+[animate]
+iterations = 10000
+batch = 65536
+lr = 5e-4
+lr_final = 5e-5
+schedule = "paper"
+grad_clip = 40.0
+checkpoint_every = 2000
+validate_every = 0
+log_every = 100
+
+[eval]
+frame_interval = 30
+chunk = 4096
+"#;
+
+fn read_chain(path: &Path, seen: &mut Vec<PathBuf>) -> Result<Table, ConfigError> {
+    let canonical = path.canonicalize().map_err(|source| ConfigError::Read {
+        path: path.into(),
+        source,
+    })?;
+    if seen.contains(&canonical) {
+        return Err(ConfigError::BaseCycle {
+            path: path.into(),
+            again: canonical,
+        });
+    }
+    seen.push(canonical.clone());
+    let text = std::fs::read_to_string(path).map_err(|source| ConfigError::Read {
+        path: path.into(),
+        source,
+    })?;
+    let mut table: Table = toml::from_str(&text).map_err(|e| ConfigError::Parse {
+        path: path.into(),
+        message: e.to_string(),
+    })?;
+    let dir = canonical
+        .parent()
+        .map(Path::to_path_buf)
+        .unwrap_or_default();
+    let base = match table.remove("base") {
+        Some(Value::String(b)) => read_chain(&dir.join(b), seen)?,
+        Some(other) => {
+            return Err(ConfigError::Invalid(format!(
+                "{}: `base` must be a file name, got {other}",
+                path.display()
+            )))
+        }
+        None => defaults(),
+    };
+    let mut merged = base;
+    merge(&mut merged, table);
+    Ok(merged)
+}
+
+/// Deep-merges `over` into `base`: tables merge key by key, anything else replaces.
+pub fn merge(base: &mut Table, over: Table) {
+    for (k, v) in over {
+        match (base.get_mut(&k), v) {
+            (Some(Value::Table(b)), Value::Table(o)) => merge(b, o),
+            (_, v) => {
+                base.insert(k, v);
+            }
+        }
+    }
+}
+
+/// Applies one `section.key=value` override.
+pub fn apply_override(table: &mut Table, text: &str) -> Result<(), ConfigError> {
+    let (key, value) = text
+        .split_once('=')
+        .ok_or_else(|| ConfigError::BadOverride(text.into()))?;
+    let path: Vec<&str> = key.trim().split('.').collect();
+    if path.iter().any(|p| p.is_empty()) {
+        return Err(ConfigError::BadOverride(text.into()));
+    }
+    let value = value.trim();
+    let parsed = toml::from_str::<Table>(&format!("v = {value}"))
+        .ok()
+        .and_then(|mut t| t.remove("v"))
+        .unwrap_or_else(|| Value::String(value.to_string()));
+    let mut node = table;
+    for p in &path[..path.len() - 1] {
+        node = match node
+            .entry(p.to_string())
+            .or_insert_with(|| Value::Table(Table::new()))
+        {
+            Value::Table(t) => t,
+            _ => {
+                return Err(ConfigError::Invalid(format!(
+                    "override `{text}`: `{p}` is not a section"
+                )))
+            }
+        };
+    }
+    node.insert(path[path.len() - 1].to_string(), parsed);
+    Ok(())
+}
+
+/// Replaces `[model] preset = "…"` by the preset's full configuration with the other `[model]` keys on top.
+/// Without `preset` the section must list every field (as a saved, resolved config does).
+fn expand_model_preset(table: &mut Table) -> Result<(), ConfigError> {
+    let mut model = match table.remove("model") {
+        Some(Value::Table(t)) => t,
+        None => Table::new(),
+        Some(_) => return Err(ConfigError::Invalid("`model` must be a section".into())),
+    };
+    let preset = match model.remove("preset") {
+        Some(Value::String(name)) => name
+            .parse::<ModelPreset>()
+            .map_err(|e| ConfigError::Invalid(format!("model.preset: {e}")))?,
+        Some(other) => {
+            return Err(ConfigError::Invalid(format!(
+                "model.preset = {other}: expected a preset name"
+            )))
+        }
+        // A resolved config (as saved in a run folder) lists every field itself.
+        None => {
+            table.insert("model".into(), Value::Table(model));
+            return Ok(());
+        }
+    };
+    let mut full = Table::try_from(preset.config()).expect("model configs serialise to TOML");
+    merge(&mut full, model);
+    table.insert("model".into(), Value::Table(full));
+    Ok(())
+}
+
+/// Checks values serde cannot: ranges, sizes and positivity. Errors name the key.
+pub fn validate(c: &ExperimentConfig) -> Result<(), ConfigError> {
+    let bad = |key: &str, why: String| Err(ConfigError::Invalid(format!("{key}: {why}")));
+    c.model.validate().map_err(ConfigError::Invalid)?;
+    let d = &c.dataset;
+    if !(d.ratio.is_finite() && d.ratio > 0.0 && d.ratio <= 1.0) {
+        return bad(
+            "dataset.ratio",
+            format!("{} (expected 0 < ratio ≤ 1)", d.ratio),
+        );
+    }
+    if d.train_views.is_empty() {
+        return bad(
+            "dataset.train_views",
+            "empty (expected at least one camera index)".into(),
+        );
+    }
+    if d.frame_interval == 0 {
+        return bad(
+            "dataset.frame_interval",
+            "0 (expected a positive integer)".into(),
+        );
+    }
+    for (name, split) in [
+        ("dataset.iccv", Some(&d.iccv)),
+        ("dataset.tpami", d.tpami.as_ref()),
+    ] {
+        if let Some(s) = split {
+            if s.train_frames.is_empty() {
+                return bad(
+                    &format!("{name}.train_frames"),
+                    format!("{} holds no frame", s.train_frames),
+                );
+            }
+        }
+    }
+    if d.ranges == RangeSet::Tpami && d.tpami.is_none() {
+        return bad(
+            "dataset.ranges",
+            "\"tpami\" but the config has no [dataset.tpami] section".into(),
+        );
+    }
+    for (name, s) in [("train", &c.train), ("animate", &c.animate)] {
+        if s.batch == 0 {
+            return bad(
+                &format!("{name}.batch"),
+                "0 (expected a positive integer)".into(),
+            );
+        }
+        if !(s.lr > 0.0 && s.lr_final > 0.0 && s.lr.is_finite() && s.lr_final.is_finite()) {
+            return bad(
+                &format!("{name}.lr"),
+                format!("{} → {} (expected positive rates)", s.lr, s.lr_final),
+            );
+        }
+        if !(s.grad_clip >= 0.0) {
+            return bad(
+                &format!("{name}.grad_clip"),
+                format!("{} (expected ≥ 0; 0 disables)", s.grad_clip),
+            );
+        }
+        if s.log_every == 0 {
+            return bad(
+                &format!("{name}.log_every"),
+                "0 (expected a positive integer)".into(),
+            );
+        }
+    }
+    if c.eval.frame_interval == 0 || c.eval.chunk == 0 {
+        return bad("eval", "frame_interval and chunk must be positive".into());
+    }
+    if c.name.is_empty() || c.name.contains(['/', '\\']) {
+        return bad(
+            "name",
+            format!("'{}' (expected a non-empty name without slashes)", c.name),
+        );
+    }
+    Ok(())
+}
+
+/// The config as TOML, as written into a run folder.
+pub fn to_toml(c: &ExperimentConfig) -> String {
+    toml::to_string_pretty(c).expect("configs serialise to TOML")
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn write(dir: &Path, name: &str, text: &str) -> PathBuf {
+        let p = dir.join(name);
+        std::fs::write(&p, text).unwrap();
+        p
+    }
+
+    const SUBJECT: &str = r#"
+name = "s"
+[dataset]
+format = "zju_mocap"
+root = "data/x"
+ratio = 0.5
+train_views = [0, 6]
+iccv = { train_frames = "0:60", novel_pose_frames = "60:1060" }
+[model]
+preset = "tiny"
+width = 48
+"#;
+
+    #[test]
+    fn inheritance_overrides_and_presets() {
+        let dir = tempfile::tempdir().unwrap();
+        write(dir.path(), "base.toml", SUBJECT);
+        let child = write(
+            dir.path(),
+            "child.toml",
+            "base = \"base.toml\"\nname = \"child\"\n[train]\niterations = 7\n",
+        );
+        let c = load(
+            &child,
+            &["train.batch=64".into(), "dataset.ranges=iccv".into()],
+        )
+        .unwrap();
+        assert_eq!(c.name, "child");
+        assert_eq!(
+            (c.train.iterations, c.train.batch, c.train.lr),
+            (7, 64, 5e-4)
+        );
+        // The preset's sizes with the file's override on top.
+        let tiny = ModelPreset::Tiny.config();
+        assert_eq!((c.model.width, c.model.depth), (48, tiny.depth));
+        assert_eq!(
+            c.dataset.split().train_frames.frames(),
+            (0..60).collect::<Vec<_>>()
+        );
+        // The resolved config round-trips through its TOML.
+        let again = from_table(toml::from_str(&to_toml(&c)).unwrap()).unwrap();
+        assert_eq!(again, c);
+    }
+
+    #[test]
+    fn errors_name_the_key_and_the_allowed_values() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = write(dir.path(), "s.toml", SUBJECT);
+        let err = load(&p, &["model.preset=huge".into()])
+            .unwrap_err()
+            .to_string();
+        assert!(
+            err.contains("model.preset") && err.contains("paper, cpu, tiny"),
+            "{err}"
+        );
+        let err = load(&p, &["dataset.ratio=2".into()])
+            .unwrap_err()
+            .to_string();
+        assert!(err.contains("dataset.ratio"), "{err}");
+        let err = load(&p, &["train.schedule=cosine".into()])
+            .unwrap_err()
+            .to_string();
+        assert!(
+            err.contains("cosine") && err.contains("paper") && err.contains("code"),
+            "{err}"
+        );
+        let err = load(&p, &["train.typo=1".into()]).unwrap_err().to_string();
+        assert!(err.contains("typo"), "{err}");
+        let err = load(&p, &["device=tpu".into()]).unwrap_err().to_string();
+        assert!(err.contains("tpu") && err.contains("flex"), "{err}");
+        let err = load(&p, &["dataset.iccv.train_frames=9:3".into()])
+            .unwrap_err()
+            .to_string();
+        assert!(err.contains("9:3"), "{err}");
+        assert!(matches!(
+            load(&p, &["nonsense".into()]),
+            Err(ConfigError::BadOverride(_))
+        ));
+    }
+
+    #[test]
+    fn base_cycles_are_reported() {
+        let dir = tempfile::tempdir().unwrap();
+        write(dir.path(), "a.toml", "base = \"b.toml\"");
+        let b = write(dir.path(), "b.toml", "base = \"a.toml\"");
+        assert!(matches!(load(&b, &[]), Err(ConfigError::BaseCycle { .. })));
+    }
+
+    #[test]
+    fn frame_ranges_parse_and_print() {
+        let r: FrameRange = "10:20:5".parse().unwrap();
+        assert_eq!(r.frames(), vec![10, 15]);
+        assert_eq!(r.to_string(), "10:20:5");
+        assert!("5".parse::<FrameRange>().is_err());
+        assert!("0:10:0".parse::<FrameRange>().is_err());
+    }
+}
