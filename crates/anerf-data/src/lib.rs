@@ -4,5 +4,6 @@
 
 pub mod formats;
 pub mod subject;
+pub mod synthetic;
 
 pub use subject::{BodyModel, DatasetKind, FrameRecord, SkinningWeights, Subject};
