@@ -4,11 +4,15 @@
 
 pub mod appearance;
 pub mod body;
+pub mod cameras;
 pub mod motion;
+pub mod raster;
+mod rng;
 
 use thiserror::Error;
 
 pub use body::{build_body, Body, BodyShape};
+pub use cameras::RigSpec;
 pub use motion::{ClipSpec, MotionKind};
 
 /// Errors of the generator; each names the option, file or folder at fault.
