@@ -99,7 +99,7 @@ fn manifest(s: &SyntheticSummary) -> Value {
             "training_frames": s.splits.training_frames,
             "novel_pose_frames": s.splits.novel_pose_frames,
         }}),
-        json!({"kind": "lbs", "frames": (0..subject.frames.len()).collect::<Vec<_>>(), "tolerance": 2e-5}),
+        json!({"kind": "lbs", "frames": (0..subject.frames.len()).collect::<Vec<_>>(), "tolerance": 2e-6}),
     ]);
     json!({ "files": files })
 }
