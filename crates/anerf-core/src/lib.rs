@@ -12,6 +12,7 @@ pub mod device;
 pub mod error;
 pub mod geometry;
 pub mod ids;
+pub mod mesh;
 pub mod model;
 pub mod render;
 pub mod tensor;

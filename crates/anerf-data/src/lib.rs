@@ -2,6 +2,8 @@
 //! images and masks), their loaders into one [`Subject`] type, preprocessing caches, ray sampling, and the
 //! built-in synthetic subjects.
 
+pub mod formats;
 pub mod subject;
+pub mod synthetic;
 
 pub use subject::{BodyModel, DatasetKind, FrameRecord, SkinningWeights, Subject};

@@ -1,0 +1,257 @@
+//! The tiny synthetic subject on disk: numpy reads every file back as written, forward LBS reproduces the
+//! posed vertices, the posed vertices land inside the masks, and the seed fixes every byte.
+
+mod common;
+
+use std::path::{Path, PathBuf};
+
+use anerf_data::synthetic::{write_subject, SynthError, SyntheticSpec, SyntheticSummary};
+use glam::{Mat3, Vec3};
+use serde_json::{json, Value};
+
+fn array(dtype: &str, shape: &[usize], data: Value) -> Value {
+    json!({"__array__": {"dtype": dtype, "shape": shape, "data": data}})
+}
+
+/// A dict whose key order numpy must give back.
+fn ordered(items: &[(&str, Value)]) -> Value {
+    json!({"__dict__": items.iter().map(|(k, v)| json!([k, v])).collect::<Vec<_>>()})
+}
+
+fn f64s(values: impl IntoIterator<Item = f32>) -> Value {
+    json!(values.into_iter().map(f64::from).collect::<Vec<_>>())
+}
+
+fn row_major(m: Mat3) -> Vec<f32> {
+    (0..3)
+        .flat_map(|r| (0..3).map(move |c| m.col(c)[r]))
+        .collect()
+}
+
+fn flat(v: &[Vec3]) -> Vec<f32> {
+    v.iter().flat_map(|p| p.to_array()).collect()
+}
+
+fn relative(root: &Path, path: &Path) -> String {
+    path.strip_prefix(root)
+        .unwrap()
+        .to_string_lossy()
+        .into_owned()
+}
+
+/// What each file of the subject must hold, stated from the summary and the ZJU-MoCap layout.
+fn manifest(s: &SyntheticSummary) -> Value {
+    let subject = &s.subject;
+    let root = &subject.root;
+    let cams = &subject.cameras;
+    let mut files = vec![json!({
+        "path": "annots.npy",
+        "kind": "object",
+        "expected": ordered(&[
+            ("cams", ordered(&[
+                ("K", cams.iter().map(|c| array("<f8", &[3, 3], f64s(row_major(c.intrinsics)))).collect()),
+                ("D", cams.iter().map(|c| array("<f8", &[5, 1], f64s(c.distortion.0))).collect()),
+                ("R", cams.iter().map(|c| array("<f8", &[3, 3], f64s(row_major(c.rotation)))).collect()),
+                ("T", cams.iter().map(|c| array("<f8", &[3, 1], json!(c.translation.to_array().map(|t| f64::from(t) * 1000.0)))).collect()),
+            ])),
+            ("ims", subject.frames.iter().map(|f| json!({"ims": f.images.iter().map(|p| relative(root, p)).collect::<Vec<_>>()})).collect()),
+        ])
+    })];
+    for (i, frame) in subject.frames.iter().enumerate() {
+        assert_eq!(frame.file_index, i);
+        files.push(json!({
+            "path": format!("new_params/{i}.npy"),
+            "kind": "object",
+            "expected": ordered(&[
+                ("poses", array("<f8", &[1, 72], f64s(flat(&frame.pose.joint_rotations)))),
+                ("Rh", array("<f8", &[1, 3], f64s(frame.pose.global.rh.to_array()))),
+                ("Th", array("<f8", &[1, 3], f64s(frame.pose.global.th.to_array()))),
+                ("shapes", array("<f8", &[1, 10], json!(vec![0.0f64; 10]))),
+            ])
+        }));
+        let verts = &s.posed_vertices[i];
+        files.push(json!({"path": relative(root, &frame.vertices), "kind": "npy", "expected": array("<f4", &[verts.len(), 3], json!(flat(verts)))}));
+        for (v, (image, mask)) in frame.images.iter().zip(&frame.masks).enumerate() {
+            let (w, h) = (cams[v].width, cams[v].height);
+            files.push(
+                json!({"path": relative(root, image), "kind": "jpeg", "width": w, "height": h}),
+            );
+            files.push(json!({"path": relative(root, mask), "kind": "png", "width": w, "height": h, "foreground": s.foreground_pixels[i][v]}));
+        }
+    }
+    let body = &subject.body;
+    let n = body.canonical_vertices.len();
+    let parents: Vec<i64> = body
+        .skeleton
+        .parents()
+        .iter()
+        .map(|p| p.map_or(4294967295, |p| p as i64))
+        .collect();
+    files.extend([
+        json!({"path": "lbs/joints.npy", "kind": "npy", "expected": array("<f4", &[24, 3], json!(flat(body.skeleton.rest_joints())))}),
+        json!({"path": "lbs/parents.npy", "kind": "npy", "expected": array("<i8", &[24], json!(parents))}),
+        json!({"path": "lbs/tvertices.npy", "kind": "npy", "expected": array("<f4", &[n, 3], json!(flat(&body.canonical_vertices)))}),
+        json!({"path": "lbs/weights.npy", "kind": "npy", "expected": array("<f4", &[n, 24], json!(body.weights.as_slice()))}),
+        json!({"path": "lbs/faces.npy", "kind": "npy", "expected": array("<i8", &[body.faces.len(), 3], json!(body.faces.iter().flatten().collect::<Vec<_>>()))}),
+        json!({"path": "splits.json", "kind": "json", "expected": {
+            "training_views": s.splits.training_views,
+            "test_views": s.splits.test_views,
+            "training_frames": s.splits.training_frames,
+            "novel_pose_frames": s.splits.novel_pose_frames,
+        }}),
+        json!({"kind": "lbs", "frames": (0..subject.frames.len()).collect::<Vec<_>>(), "tolerance": 2e-6}),
+    ]);
+    json!({ "files": files })
+}
+
+fn write_tiny(dir: &Path, name: &str, spec: &SyntheticSpec) -> SyntheticSummary {
+    let summary = write_subject(spec, &dir.join(name)).unwrap();
+    let t = summary.timings;
+    println!(
+        "{name}: {} vertices, {} faces; body {:.2?}, images {:.2?}, arrays {:.2?}, total {:.2?}",
+        summary.subject.body.canonical_vertices.len(),
+        summary.subject.body.faces.len(),
+        t.body,
+        t.images,
+        t.arrays,
+        t.total
+    );
+    summary
+}
+
+#[test]
+fn numpy_reads_the_tiny_subject_back_and_lbs_reproduces_the_vertices() {
+    let dir = tempfile::tempdir().unwrap();
+    let spec = SyntheticSpec::tiny();
+    let summary = write_tiny(dir.path(), "tiny", &spec);
+    assert_eq!(summary.subject.cameras.len(), 4);
+    assert_eq!(summary.subject.frames.len(), 10);
+    assert_eq!(summary.splits.training_views, vec![0, 2]);
+    assert_eq!(summary.splits.test_views, vec![1, 3]);
+    assert_eq!(
+        summary.splits.novel_pose_frames,
+        (6..10).collect::<Vec<_>>()
+    );
+    common::numpy_check(&summary.subject.root, &manifest(&summary));
+}
+
+fn read_mask(path: &Path) -> image::GrayImage {
+    image::open(path)
+        .unwrap_or_else(|e| panic!("{}: {e}", path.display()))
+        .to_luma8()
+}
+
+#[test]
+fn posed_vertices_project_inside_the_masks_and_the_images_show_the_body() {
+    let dir = tempfile::tempdir().unwrap();
+    let summary = write_tiny(dir.path(), "tiny", &SyntheticSpec::tiny());
+    let mut outside = 0;
+    let mut total = 0;
+    for (f, frame) in summary.subject.frames.iter().enumerate() {
+        for (v, cam) in summary.subject.cameras.iter().enumerate() {
+            assert!(
+                !cam.distortion.is_identity(),
+                "the tiny rig has lens distortion"
+            );
+            let mask = read_mask(&frame.masks[v]);
+            let image = image::open(&frame.images[v]).unwrap().to_rgb8();
+            for x in &summary.posed_vertices[f] {
+                let p = cam.project_distorted(*x).unwrap().round();
+                assert!(
+                    p.x >= 0.0 && p.y >= 0.0 && p.x < 64.0 && p.y < 64.0,
+                    "vertex {x} leaves view {v}: {p}"
+                );
+                total += 1;
+                if mask.get_pixel(p.x as u32, p.y as u32)[0] == 0 {
+                    outside += 1;
+                }
+            }
+            // Background is black (up to JPEG ringing next to the body) and the body is lit.
+            let (mut bg, mut bg_sum, mut fg, mut fg_sum) = (0u32, 0u32, 0u32, 0u32);
+            for (m, px) in mask.pixels().zip(image.pixels()) {
+                let level = px.0.iter().map(|&c| c as u32).sum::<u32>();
+                if m[0] == 0 {
+                    bg += 1;
+                    bg_sum += level;
+                } else {
+                    fg += 1;
+                    fg_sum += level;
+                }
+            }
+            assert!(fg > 100, "view {v} frame {f}: {fg} foreground pixels");
+            assert!(
+                (bg_sum as f32 / (3 * bg) as f32) < 3.0,
+                "background not black in view {v} frame {f}"
+            );
+            assert!(
+                fg_sum as f32 / (3 * fg) as f32 > 30.0,
+                "body too dark in view {v} frame {f}"
+            );
+        }
+    }
+    println!("{outside} of {total} projected vertices fall outside the mask");
+    assert_eq!(outside, 0);
+}
+
+fn files_under(root: &Path) -> Vec<PathBuf> {
+    let mut out = Vec::new();
+    let mut stack = vec![root.to_path_buf()];
+    while let Some(d) = stack.pop() {
+        for e in std::fs::read_dir(&d).unwrap() {
+            let p = e.unwrap().path();
+            if p.is_dir() {
+                stack.push(p)
+            } else {
+                out.push(p.strip_prefix(root).unwrap().to_path_buf())
+            }
+        }
+    }
+    out.sort();
+    out
+}
+
+#[test]
+fn the_seed_fixes_every_byte() {
+    let dir = tempfile::tempdir().unwrap();
+    let spec = SyntheticSpec::tiny();
+    let a = write_tiny(dir.path(), "a", &spec);
+    let b = write_tiny(dir.path(), "b", &spec);
+    let files = files_under(&a.subject.root);
+    assert_eq!(files, files_under(&b.subject.root));
+    assert!(files.len() > 90, "{} files", files.len());
+    for f in &files {
+        let same = std::fs::read(a.subject.root.join(f)).unwrap()
+            == std::fs::read(b.subject.root.join(f)).unwrap();
+        assert!(
+            same,
+            "{} differs between two runs with the same seed",
+            f.display()
+        );
+    }
+    let other = write_tiny(dir.path(), "c", &SyntheticSpec { seed: 1, ..spec });
+    assert_ne!(other.subject.cameras, a.subject.cameras);
+    assert_ne!(
+        std::fs::read(other.subject.root.join("annots.npy")).unwrap(),
+        std::fs::read(a.subject.root.join("annots.npy")).unwrap()
+    );
+}
+
+#[test]
+fn failures_leave_nothing_behind() {
+    let dir = tempfile::tempdir().unwrap();
+    let existing = dir.path().join("taken");
+    std::fs::create_dir(&existing).unwrap();
+    assert!(matches!(
+        write_subject(&SyntheticSpec::tiny(), &existing),
+        Err(SynthError::AlreadyExists(_))
+    ));
+    let mut bad = SyntheticSpec::tiny();
+    bad.supersampling = 0;
+    let err = write_subject(&bad, &dir.path().join("bad")).unwrap_err();
+    assert!(err.to_string().contains("supersampling"), "{err}");
+    let left: Vec<_> = std::fs::read_dir(dir.path())
+        .unwrap()
+        .map(|e| e.unwrap().file_name())
+        .collect();
+    assert_eq!(left, vec![std::ffi::OsString::from("taken")]);
+}
