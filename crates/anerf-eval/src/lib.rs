@@ -7,6 +7,7 @@ pub mod error;
 pub mod images;
 pub mod metrics;
 pub mod raster;
+pub mod report;
 
 pub use compare::{compare_files, Comparison};
 pub use error::{EvalError, MetricError};
