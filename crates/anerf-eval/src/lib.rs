@@ -5,6 +5,8 @@ pub mod atomic;
 pub mod compare;
 pub mod error;
 pub mod images;
+pub mod mesh_io;
+pub mod mesh_smooth;
 pub mod metrics;
 pub mod raster;
 pub mod report;
