@@ -135,8 +135,10 @@ impl EvalRecorder {
         }
     }
 
-    /// Measures one image with the paper's protocol (`mask` = pixels whose ray hits the padded body box) and
-    /// saves prediction, ground truth, mask and the side-by-side composite.
+    /// Measures one image with the paper's protocol and saves prediction, ground truth, mask and the
+    /// side-by-side composite. As in the reference, `mask` holds the pixels whose ray hits the padded body
+    /// box, `gt` already has its background (and everything outside the projected box) set to black, and
+    /// `pred` is black outside `mask`; images whose ground truth is all black are kept (the ICCV code does).
     ///
     /// The images are measured as saved (16-bit PNG, steps of 1/65535), so re-measuring the files gives the
     /// same numbers; this moves PSNR by far less than 0.001 dB against the unquantised images.
