@@ -1,1 +1,17 @@
-//! placeholder
+//! Evaluation and outputs of anerf: PSNR and SSIM with the paper's protocol, image comparison, image and
+//! video files, metric reports, and mesh export.
+
+pub mod atomic;
+pub mod compare;
+pub mod error;
+pub mod images;
+pub mod mesh_io;
+pub mod mesh_smooth;
+pub mod metrics;
+pub mod raster;
+pub mod report;
+
+pub use compare::{compare_files, Comparison};
+pub use error::{EvalError, MetricError};
+pub use metrics::ImageMetrics;
+pub use raster::{ImageSize, PixelMask, PixelRect, RgbImageF32};

@@ -1,0 +1,78 @@
+//! PSNR and SSIM against numpy and scikit-image (`scripts/fixtures/metrics.py`).
+
+use anerf_eval::{ImageMetrics, ImageSize, PixelMask, RgbImageF32};
+use serde_json::Value;
+
+mod support;
+
+/// A metric value of the fixture: a number, or the string "inf" for identical pixels.
+fn metric(v: &Value) -> f64 {
+    match v {
+        Value::String(s) if s == "inf" => f64::INFINITY,
+        other => other
+            .as_f64()
+            .unwrap_or_else(|| panic!("not a metric value: {other}")),
+    }
+}
+
+/// Checks `got` against the reference to 1e-6 and returns the absolute deviation (0 for matching infinities).
+fn assert_close(name: &str, what: &str, got: f64, expected: f64) -> f64 {
+    let deviation = if expected.is_infinite() && got == expected {
+        0.0
+    } else {
+        (got - expected).abs()
+    };
+    assert!(
+        deviation <= 1e-6,
+        "{name}: {what} {got} vs scikit-image/numpy {expected}"
+    );
+    deviation
+}
+
+#[test]
+fn psnr_and_ssim_match_numpy_and_scikit_image() {
+    let fixture = support::load_json("metrics", "images.json");
+    let cases = fixture["cases"].as_array().unwrap();
+    assert!(
+        cases.len() >= 15,
+        "expected the full fixture set, got {} cases",
+        cases.len()
+    );
+    let (mut masked, mut worst_psnr, mut worst_ssim) = (0, 0.0f64, 0.0f64);
+    for case in cases {
+        let name = case["name"].as_str().unwrap();
+        let size = ImageSize::new(
+            case["width"].as_u64().unwrap() as u32,
+            case["height"].as_u64().unwrap() as u32,
+        );
+        let image = |key: &str| {
+            let data = case[key]
+                .as_array()
+                .unwrap()
+                .iter()
+                .map(|v| v.as_f64().unwrap() as f32)
+                .collect();
+            RgbImageF32::new(size, data).unwrap()
+        };
+        let mask = case.get("mask").map(|m| {
+            PixelMask::new(
+                size,
+                m.as_array()
+                    .unwrap()
+                    .iter()
+                    .map(|v| v.as_u64() == Some(1))
+                    .collect(),
+            )
+            .unwrap()
+        });
+        masked += usize::from(mask.is_some());
+        let got = ImageMetrics::compute(&image("pred"), &image("gt"), mask.as_ref()).unwrap();
+        worst_psnr = worst_psnr.max(assert_close(name, "PSNR", got.psnr, metric(&case["psnr"])));
+        worst_ssim = worst_ssim.max(assert_close(name, "SSIM", got.ssim, metric(&case["ssim"])));
+    }
+    println!(
+        "{} cases: largest deviation PSNR {worst_psnr:e} dB, SSIM {worst_ssim:e}",
+        cases.len()
+    );
+    assert!(masked >= 8, "expected the masked cases, got {masked}");
+}
