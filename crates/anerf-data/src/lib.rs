@@ -2,6 +2,9 @@
 //! images and masks), their loaders into one [`Subject`] type, preprocessing caches, ray sampling, and the
 //! built-in synthetic subjects.
 
+pub mod error;
+pub mod formats;
 pub mod subject;
 
+pub use error::DataError;
 pub use subject::{BodyModel, DatasetKind, FrameRecord, SkinningWeights, Subject};
