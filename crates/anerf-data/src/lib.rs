@@ -6,9 +6,11 @@ pub mod error;
 pub mod formats;
 pub mod loaders;
 pub mod prepare;
+pub mod sampler;
 pub mod subject;
 
 pub use error::DataError;
 pub use loaders::{load, load_h36m, load_zju_mocap, LoadOptions};
 pub use prepare::{prepare, PrepareOptions, PreparedSubject};
+pub use sampler::{image_rays, ImageRays, ImageView, RaySampler, SamplerOptions};
 pub use subject::{BodyModel, DatasetKind, FrameRecord, SkinningWeights, Subject};
