@@ -4,12 +4,15 @@
 
 pub mod error;
 pub mod formats;
+pub mod info;
 pub mod loaders;
 pub mod prepare;
 pub mod sampler;
+pub mod splits;
 pub mod subject;
 
 pub use error::DataError;
+pub use info::{inspect, InspectOptions, Report};
 pub use loaders::{load, load_h36m, load_zju_mocap, LoadOptions};
 pub use prepare::{prepare, PrepareOptions, PreparedSubject};
 pub use sampler::{image_rays, ImageRays, ImageView, RaySampler, SamplerOptions};
