@@ -81,6 +81,9 @@ fn every_problem_is_listed_not_only_the_first() {
         .save(root.join("Camera_B3/000002.jpg"))
         .unwrap();
     std::fs::write(root.join("Camera_B1/000003.jpg"), b"not a jpeg").unwrap();
+    std::fs::remove_file(root.join("mask_cihp/Camera_B4/000000.png")).unwrap();
+    std::fs::remove_file(root.join("mask_cihp/Camera_B2/000003.png")).unwrap();
+    std::fs::create_dir(root.join("Camera_B9")).unwrap();
     let r = inspect(&root, &InspectOptions::default());
     assert!(r.has_fatal());
     let text = r.to_string();
@@ -91,10 +94,13 @@ fn every_problem_is_listed_not_only_the_first() {
         "Camera_B3/000002.jpg",
         "Camera_B1/000003.jpg",
         "params/ (fits",
+        "Camera_B4/000000.png",
+        "Camera_B2/000003.png",
+        "not listed in annots.npy (ignored): Camera_B9",
     ] {
         assert!(text.contains(needle), "{needle} not reported:\n{text}");
     }
-    assert_eq!(r.problems.iter().filter(|p| p.fatal).count(), 5, "{text}");
+    assert_eq!(r.problems.iter().filter(|p| p.fatal).count(), 7, "{text}");
     // What could still be counted is summarised.
     assert_eq!((r.cameras, r.frames, r.joints), (Some(4), Some(4), Some(5)));
 }

@@ -106,7 +106,7 @@ fn mutated_files_give_errors_not_panics_or_huge_allocations() {
     let files = corpus();
     let mut rng = rand::rngs::StdRng::seed_from_u64(0x5eed_a11e);
     let (mut ok, mut err) = (0usize, 0usize);
-    for round in 0..250 {
+    for round in 0..1000 {
         for (name, src) in &files {
             let input = mutate(&mut rng, src);
             LARGEST.store(0, Ordering::Relaxed);

@@ -107,6 +107,7 @@ pub(crate) fn read(
         return Ok(None);
     };
     let cams_ok = ck.check(check_camera_counts(root, &annots_path, raw.len(), &ims))?;
+    note_unlisted_camera_folders(root, &ims, ck);
     let cameras = if cams_ok.is_some() {
         ck.check(build_cameras(root, &raw, &ims))?
     } else {
@@ -115,7 +116,7 @@ pub(crate) fn read(
     if let Some(cameras) = &cameras {
         check_images(root, cameras, &ims, ck)?;
     }
-    let masks = ck.check(resolve_masks(root, kind, &ims))?;
+    let masks = resolve_masks(root, kind, &ims, ck)?;
     let params_dir = pick_dir(root, "new_params", "params", ck);
     let vertices_dir = pick_dir(root, "new_vertices", "vertices", ck);
     let num_joints = body.as_ref().map(|b| b.skeleton.num_joints());
@@ -353,6 +354,34 @@ fn check_camera_counts(
     Ok(())
 }
 
+/// Camera folders on disk that `annots.npy` never names (harmless, but worth knowing: the reference only
+/// ever uses the cameras listed in annots).
+fn note_unlisted_camera_folders(root: &Path, ims: &[Vec<String>], ck: &mut Checker) {
+    let used: Vec<PathBuf> = ims[0]
+        .iter()
+        .filter_map(|p| root.join(p).parent().map(Path::to_path_buf))
+        .collect();
+    let Ok(entries) = std::fs::read_dir(root) else {
+        return;
+    };
+    let mut unlisted: Vec<String> = entries
+        .filter_map(Result::ok)
+        .filter(|e| e.path().is_dir() && e.file_name().to_string_lossy().starts_with("Camera"))
+        .filter(|e| !used.contains(&e.path()))
+        .map(|e| e.file_name().to_string_lossy().into_owned())
+        .collect();
+    unlisted.sort();
+    if !unlisted.is_empty() {
+        ck.note(
+            root,
+            format!(
+                "camera folders not listed in annots.npy (ignored): {}",
+                unlisted.join(", ")
+            ),
+        );
+    }
+}
+
 /// Cameras with their image size, read from each camera's first image.
 fn build_cameras(
     root: &Path,
@@ -404,40 +433,44 @@ fn resolve_masks(
     root: &Path,
     kind: DatasetKind,
     ims: &[Vec<String>],
-) -> Result<Vec<Vec<PathBuf>>, DataError> {
-    ims.iter()
-        .map(|paths| {
-            paths
-                .iter()
-                .map(|p| {
-                    let stem = Path::new(p).with_extension("png");
-                    let mut candidates = vec![
-                        root.join("mask_cihp").join(&stem),
-                        root.join("mask").join(&stem),
-                    ];
-                    if kind == DatasetKind::H36m {
-                        candidates
-                            .push(root.join(stem.to_string_lossy().replace("images", "mask")));
-                    }
-                    candidates
-                        .iter()
-                        .find(|c| c.is_file())
-                        .cloned()
-                        .ok_or_else(|| DataError::Missing {
-                            path: candidates[0].clone(),
-                            what: format!(
-                                "a mask for image {p}: tried {}",
-                                candidates
-                                    .iter()
-                                    .map(|c| c.display().to_string())
-                                    .collect::<Vec<_>>()
-                                    .join(", ")
-                            ),
-                        })
-                })
-                .collect()
+    ck: &mut Checker,
+) -> Result<Option<Vec<Vec<PathBuf>>>, DataError> {
+    let mut all = Some(Vec::with_capacity(ims.len()));
+    for paths in ims {
+        let mut frame = Vec::with_capacity(paths.len());
+        for p in paths {
+            match ck.check(resolve_mask(root, kind, p))? {
+                Some(m) => frame.push(m),
+                None => all = None,
+            }
+        }
+        if let Some(all) = &mut all {
+            all.push(frame);
+        }
+    }
+    Ok(all)
+}
+
+fn resolve_mask(root: &Path, kind: DatasetKind, image: &str) -> Result<PathBuf, DataError> {
+    let stem = Path::new(image).with_extension("png");
+    let mut candidates = vec![
+        root.join("mask_cihp").join(&stem),
+        root.join("mask").join(&stem),
+    ];
+    if kind == DatasetKind::H36m {
+        candidates.push(root.join(stem.to_string_lossy().replace("images", "mask")));
+    }
+    candidates
+        .iter()
+        .find(|c| c.is_file())
+        .cloned()
+        .ok_or_else(|| {
+            let tried: Vec<String> = candidates.iter().map(|c| c.display().to_string()).collect();
+            DataError::Missing {
+                path: candidates[0].clone(),
+                what: format!("a mask for image {image}: tried {}", tried.join(", ")),
+            }
         })
-        .collect()
 }
 
 /// `new_*` when present (what Animatable NeRF uses), else the older fits, with a note.
