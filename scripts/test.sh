@@ -2,7 +2,7 @@
 # The test command of the README: writes the numpy/scipy fixtures, then runs every test of the workspace.
 set -euo pipefail
 cd "$(dirname "$0")/.."
-if ! python3 -c "import numpy, scipy, skimage, PIL, plyfile" 2>/dev/null; then
+if ! python3 -c "import numpy, scipy, skimage, PIL, plyfile, cv2" 2>/dev/null; then
     python3 -m pip install --quiet -r scripts/fixtures/requirements.txt
 fi
 python3 scripts/fixtures/generate.py --out target/fixtures

@@ -2,8 +2,19 @@
 //! images and masks), their loaders into one [`Subject`] type, preprocessing caches, ray sampling, and the
 //! built-in synthetic subjects.
 
+pub mod error;
 pub mod formats;
+pub mod info;
+pub mod loaders;
+pub mod prepare;
+pub mod sampler;
+pub mod splits;
 pub mod subject;
 pub mod synthetic;
 
+pub use error::DataError;
+pub use info::{inspect, InspectOptions, Report};
+pub use loaders::{load, load_h36m, load_zju_mocap, LoadOptions};
+pub use prepare::{prepare, PrepareOptions, PreparedSubject};
+pub use sampler::{image_rays, ImageRays, ImageView, RaySampler, SamplerOptions};
 pub use subject::{BodyModel, DatasetKind, FrameRecord, SkinningWeights, Subject};

@@ -1,7 +1,12 @@
-//! On-disk formats of the datasets: numpy `.npy` arrays and the pickled dicts that `np.save` writes for
-//! `annots.npy` and `new_params/*.npy`.
+//! On-disk formats of the datasets: `.npy`, `.npz`, restricted pickles, images and masks, and the writers of
+//! `.npy` arrays and `np.save(dict)` pickles used by the synthetic subjects. The parsers work on bytes; the
+//! functions here read files and attach the path to every error.
 
+pub mod images;
+pub mod npy;
 pub mod npy_write;
+pub mod npz;
+pub mod pickle;
 pub mod pickle_write;
 
 use std::io::Write;
@@ -9,8 +14,49 @@ use std::path::{Path, PathBuf};
 
 use thiserror::Error;
 
+use crate::error::DataError;
+pub use npy::{ArrayData, DType, NdArray};
 pub use npy_write::{write_npy, NpyArray, NpyData};
+pub use pickle::Value;
 pub use pickle_write::{write_object_npy, PyValue};
+
+/// Reads a whole file, naming it in the error.
+pub fn read_bytes(path: &Path) -> Result<Vec<u8>, DataError> {
+    std::fs::read(path).map_err(|e| {
+        if e.kind() == std::io::ErrorKind::NotFound {
+            DataError::Missing {
+                path: path.to_path_buf(),
+                what: "the file to exist".into(),
+            }
+        } else {
+            DataError::io(path, e)
+        }
+    })
+}
+
+/// Reads a numeric `.npy` file.
+pub fn read_npy(path: &Path) -> Result<NdArray, DataError> {
+    npy::parse_array(&read_bytes(path)?).map_err(|source| DataError::Npy {
+        path: path.to_path_buf(),
+        source,
+    })
+}
+
+/// Reads an object `.npy` file written by `np.save(dict)` and returns the object (`.item()`).
+pub fn read_npy_object(path: &Path) -> Result<Value, DataError> {
+    npy::parse_object(&read_bytes(path)?).map_err(|source| DataError::Npy {
+        path: path.to_path_buf(),
+        source,
+    })
+}
+
+/// Reads a `.pkl` file through the restricted unpickler.
+pub fn read_pickle(path: &Path) -> Result<Value, DataError> {
+    pickle::parse(&read_bytes(path)?).map_err(|source| DataError::Pickle {
+        path: path.to_path_buf(),
+        source,
+    })
+}
 
 /// Errors of the `.npy` and pickle writers, naming the file or the array at fault.
 #[derive(Debug, Error)]

@@ -1,0 +1,565 @@
+//! `anerf prepare`: turns a loaded [`Subject`] into what training reads every step — undistorted,
+//! resized images and masks, per-frame world bounds, bone transforms and pose-space blend-weight
+//! volumes, and the canonical body with its volume — cached on disk under a fingerprint of the inputs.
+
+pub mod cache;
+pub mod nearest;
+pub mod resize;
+pub mod undistort;
+pub mod volumes;
+
+use std::path::{Path, PathBuf};
+
+use anerf_core::body::BlendWeightVolume;
+use anerf_core::geometry::{
+    Aabb, BoneTransforms, Camera, CanonicalPose, Distortion, Pose, Skeleton,
+};
+use anerf_core::{FrameId, ViewId};
+use glam::Vec3;
+use image::{GrayImage, Rgb32FImage};
+use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
+use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
+
+use self::cache::{atomic_write, entry_dir, read_volume, volume_bytes, Fingerprint};
+use self::resize::{resize_area, resize_nearest, scaled_size};
+use self::undistort::UndistortMap;
+pub use self::volumes::{compute_volume, NearestMethod, VolumeGrid};
+use crate::error::DataError;
+use crate::formats::{self, images};
+use crate::subject::{DatasetKind, SkinningWeights, Subject};
+
+/// Which frames to prepare: `start..end` (end exclusive, `None` = all) every `step`-th, by position in
+/// the dataset's frame list.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+pub struct FrameSelection {
+    pub start: usize,
+    pub end: Option<usize>,
+    pub step: usize,
+}
+
+impl Default for FrameSelection {
+    fn default() -> Self {
+        Self {
+            start: 0,
+            end: None,
+            step: 1,
+        }
+    }
+}
+
+impl FrameSelection {
+    /// The selected frame positions among `n` frames.
+    pub fn ids(&self, n: usize) -> Vec<usize> {
+        let end = self.end.unwrap_or(n).min(n);
+        (self.start..end).step_by(self.step.max(1)).collect()
+    }
+}
+
+/// Everything `prepare` does, as one plain settings record (saved in the cache's manifest).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct PrepareOptions {
+    /// Root of the cache; results go to `<cache_dir>/v1/<fingerprint>/`.
+    pub cache_dir: PathBuf,
+    /// Image scale (0.5 for ZJU-MoCap's 1024² → 512², 1 for H36M); `K[:2] *= ratio` as the reference.
+    pub ratio: f32,
+    pub frames: FrameSelection,
+    /// Cameras whose images to prepare (`None` = all).
+    pub views: Option<Vec<usize>>,
+    /// Nearest surface point with barycentric weights (default) or the reference's nearest vertex.
+    pub nearest: NearestMethod,
+    pub grid: VolumeGrid,
+    /// Read the dataset's own `lbs/tbw.npy` and `lbs/bweights/{i}.npy` instead of computing volumes; their
+    /// bounds are the reference's (body box ± 0.05 m), so lookups match the reference including its stretch.
+    pub dataset_volumes: bool,
+    /// Padding of the world box around the posed vertices (metres), the reference's `box_padding`.
+    pub box_padding: f32,
+    /// Show progress bars.
+    #[serde(skip)]
+    pub progress: bool,
+}
+
+impl Default for PrepareOptions {
+    fn default() -> Self {
+        Self {
+            cache_dir: PathBuf::from("cache"),
+            ratio: 0.5,
+            frames: FrameSelection::default(),
+            views: None,
+            nearest: NearestMethod::Surface,
+            grid: VolumeGrid::default(),
+            dataset_volumes: false,
+            box_padding: 0.05,
+            progress: false,
+        }
+    }
+}
+
+/// One prepared frame.
+#[derive(Debug, Clone)]
+pub struct PreparedFrame {
+    pub id: FrameId,
+    pub file_index: usize,
+    pub pose: Pose,
+    /// Canonical (T-pose) → pose space, from [`Skeleton::bone_transforms`].
+    pub bones: BoneTransforms,
+    /// World-space box around the posed vertices, padded by `box_padding` (metres).
+    pub bounds: Aabb,
+}
+
+/// The canonical (T-pose) body.
+#[derive(Debug, Clone)]
+pub struct CanonicalBody {
+    /// Canonical vertices (metres).
+    pub vertices: Vec<Vec3>,
+    pub faces: Vec<[u32; 3]>,
+    pub weights: SkinningWeights,
+    /// Canonical vertices' box ± 0.05 m: outside it the canonical density is zero.
+    pub bounds: Aabb,
+}
+
+/// What the training loop consumes: working-resolution cameras without distortion, frames, the canonical
+/// body, and cached images, masks and volumes loaded on demand.
+#[derive(Debug, Clone)]
+pub struct PreparedSubject {
+    pub dir: PathBuf,
+    pub name: String,
+    pub kind: DatasetKind,
+    pub skeleton: Skeleton,
+    /// Every camera at the working resolution, `D = 0`.
+    pub cameras: Vec<Camera>,
+    /// Cameras whose images were prepared.
+    pub views: Vec<ViewId>,
+    pub frames: Vec<PreparedFrame>,
+    pub canonical: CanonicalBody,
+}
+
+#[derive(Serialize, Deserialize)]
+struct FrameEntry {
+    id: usize,
+    file_index: usize,
+    pose: Pose,
+    bounds: Aabb,
+}
+
+#[derive(Serialize, Deserialize)]
+struct Manifest {
+    name: String,
+    kind: DatasetKind,
+    options: PrepareOptions,
+    skeleton: Skeleton,
+    cameras: Vec<Camera>,
+    views: Vec<usize>,
+    frames: Vec<FrameEntry>,
+    vertices: Vec<Vec3>,
+    faces: Vec<[u32; 3]>,
+    weights: Vec<f32>,
+    canonical_bounds: Aabb,
+}
+
+const MANIFEST: &str = "manifest.json";
+
+fn image_name(frame: usize, view: usize) -> String {
+    format!("{frame:06}_{view:02}.png")
+}
+
+fn frame_volume_name(frame: usize) -> String {
+    format!("volumes/frame_{frame:06}.bwv")
+}
+
+const CANONICAL_VOLUME: &str = "volumes/canonical.bwv";
+
+impl PreparedSubject {
+    /// Opens a finished cache entry (one whose manifest was written).
+    pub fn open(dir: &Path) -> Result<Self, DataError> {
+        let path = dir.join(MANIFEST);
+        let text = std::fs::read_to_string(&path).map_err(|e| DataError::io(&path, e))?;
+        let m: Manifest = serde_json::from_str(&text).map_err(|e| {
+            DataError::invalid(&path, format!("not a prepared-subject manifest: {e}"))
+        })?;
+        let weights = SkinningWeights::new(m.weights, m.skeleton.num_joints())
+            .map_err(|e| DataError::invalid(&path, e))?;
+        let frames = m
+            .frames
+            .into_iter()
+            .map(|f| {
+                let bones = m
+                    .skeleton
+                    .bone_transforms(&f.pose, CanonicalPose::TPose)
+                    .map_err(|e| DataError::invalid(&path, format!("frame {}: {e}", f.id)))?;
+                Ok(PreparedFrame {
+                    id: FrameId(f.id),
+                    file_index: f.file_index,
+                    pose: f.pose,
+                    bones,
+                    bounds: f.bounds,
+                })
+            })
+            .collect::<Result<_, DataError>>()?;
+        Ok(Self {
+            dir: dir.to_path_buf(),
+            name: m.name,
+            kind: m.kind,
+            skeleton: m.skeleton,
+            cameras: m.cameras,
+            views: m.views.into_iter().map(ViewId).collect(),
+            frames,
+            canonical: CanonicalBody {
+                vertices: m.vertices,
+                faces: m.faces,
+                weights,
+                bounds: m.canonical_bounds,
+            },
+        })
+    }
+
+    /// The prepared frame `id`.
+    pub fn frame(&self, id: FrameId) -> Option<&PreparedFrame> {
+        self.frames.iter().find(|f| f.id == id)
+    }
+
+    /// Frame `id`'s blend-weight volume in pose space.
+    pub fn volume(&self, id: FrameId) -> Result<BlendWeightVolume, DataError> {
+        read_volume(&self.dir.join(frame_volume_name(id.0)))
+    }
+
+    /// The canonical blend-weight volume.
+    pub fn canonical_volume(&self) -> Result<BlendWeightVolume, DataError> {
+        read_volume(&self.dir.join(CANONICAL_VOLUME))
+    }
+
+    /// Undistorted image at the working resolution, channels in `[0, 1]`.
+    pub fn image(&self, frame: FrameId, view: ViewId) -> Result<Rgb32FImage, DataError> {
+        images::read_rgb(&self.dir.join("images").join(image_name(frame.0, view.0)))
+    }
+
+    /// Undistorted mask at the working resolution: 1 = body, 0 = background.
+    pub fn mask(&self, frame: FrameId, view: ViewId) -> Result<GrayImage, DataError> {
+        images::read_mask(&self.dir.join("masks").join(image_name(frame.0, view.0)))
+    }
+}
+
+/// Prepares `subject` (or reuses the cache entry of identical inputs and options) and opens the result.
+pub fn prepare(subject: &Subject, options: &PrepareOptions) -> Result<PreparedSubject, DataError> {
+    let frames = options.frames.ids(subject.frames.len());
+    let views: Vec<usize> = options
+        .views
+        .clone()
+        .unwrap_or_else(|| (0..subject.cameras.len()).collect());
+    let settings = |detail: String| DataError::invalid(&subject.root, detail);
+    if frames.is_empty() {
+        return Err(settings(format!(
+            "frame selection {:?} picks none of the {} frames",
+            options.frames,
+            subject.frames.len()
+        )));
+    }
+    if let Some(v) = views.iter().find(|&&v| v >= subject.cameras.len()) {
+        return Err(settings(format!(
+            "view {v} does not exist (the subject has {} cameras)",
+            subject.cameras.len()
+        )));
+    }
+    if !(options.ratio > 0.0 && options.ratio <= 1.0) {
+        return Err(settings(format!(
+            "ratio {} must lie in (0, 1]",
+            options.ratio
+        )));
+    }
+    let dir = entry_dir(
+        &options.cache_dir,
+        &fingerprint(subject, options, &frames, &views)?,
+    );
+    if dir.join(MANIFEST).is_file() {
+        return PreparedSubject::open(&dir);
+    }
+    let body = &subject.body;
+    let cameras: Vec<Camera> = subject
+        .cameras
+        .iter()
+        .map(|c| working_camera(c, options.ratio))
+        .collect();
+    let lbs = subject.root.join("lbs");
+
+    // Per-frame bounds and pose-space volumes.
+    let bar = progress_bar(options.progress, frames.len() as u64 + 1, "volumes");
+    let mut entries = Vec::with_capacity(frames.len());
+    for &f in &frames {
+        let rec = &subject.frames[f];
+        let world = read_vertices(&rec.vertices, body.canonical_vertices.len())?;
+        let pose_space: Vec<Vec3> = world
+            .iter()
+            .map(|&x| rec.pose.global.world_to_pose(x))
+            .collect();
+        let bounds = Aabb::from_points(world.iter().copied())
+            .expect("vertices")
+            .padded(options.box_padding);
+        let out = dir.join(frame_volume_name(f));
+        if !out.is_file() {
+            let vol = if options.dataset_volumes {
+                dataset_volume(
+                    &lbs.join("bweights").join(format!("{}.npy", rec.file_index)),
+                    &pose_space,
+                    options,
+                    body.skeleton.num_joints(),
+                )?
+            } else {
+                compute_volume(
+                    &pose_space,
+                    &body.faces,
+                    &body.weights,
+                    options.nearest,
+                    options.grid,
+                )
+            };
+            atomic_write(&out, &volume_bytes(&vol))?;
+        }
+        entries.push(FrameEntry {
+            id: f,
+            file_index: rec.file_index,
+            pose: rec.pose.clone(),
+            bounds,
+        });
+        bar.inc(1);
+    }
+    let canonical_bounds = Aabb::from_points(body.canonical_vertices.iter().copied())
+        .expect("vertices")
+        .padded(options.box_padding);
+    let out = dir.join(CANONICAL_VOLUME);
+    if !out.is_file() {
+        let vol = if options.dataset_volumes {
+            dataset_volume(
+                &lbs.join("tbw.npy"),
+                &body.canonical_vertices,
+                options,
+                body.skeleton.num_joints(),
+            )?
+        } else {
+            compute_volume(
+                &body.canonical_vertices,
+                &body.faces,
+                &body.weights,
+                options.nearest,
+                options.grid,
+            )
+        };
+        atomic_write(&out, &volume_bytes(&vol))?;
+    }
+    bar.finish();
+
+    // Images and masks, all (frame, view) pairs in parallel.
+    let maps: Vec<Option<UndistortMap>> = subject
+        .cameras
+        .iter()
+        .enumerate()
+        .map(|(c, cam)| {
+            (views.contains(&c) && !cam.distortion.is_identity())
+                .then(|| UndistortMap::new(cam.intrinsics, &cam.distortion, cam.width, cam.height))
+        })
+        .collect();
+    let jobs: Vec<(usize, usize)> = frames
+        .iter()
+        .flat_map(|&f| views.iter().map(move |&v| (f, v)))
+        .collect();
+    let bar = progress_bar(options.progress, jobs.len() as u64, "images");
+    jobs.par_iter().try_for_each(|&(f, v)| {
+        let rec = &subject.frames[f];
+        let (raw, work) = (&subject.cameras[v], &cameras[v]);
+        let name = image_name(f, v);
+        let img_out = dir.join("images").join(&name);
+        if !img_out.is_file() {
+            let img = images::read_rgb(&rec.images[v])?;
+            check_size(&rec.images[v], img.dimensions(), raw)?;
+            let img = match &maps[v] {
+                Some(m) => m.remap_rgb(&img),
+                None => img,
+            };
+            let img = resize_area(&img, work.width, work.height);
+            atomic_write(&img_out, &png_rgb(&img))?;
+        }
+        let mask_out = dir.join("masks").join(&name);
+        if !mask_out.is_file() {
+            let mask = images::read_mask(&rec.masks[v])?;
+            check_size(&rec.masks[v], mask.dimensions(), raw)?;
+            let mask = match &maps[v] {
+                Some(m) => m.remap_nearest(&mask),
+                None => mask,
+            };
+            let mut mask = resize_nearest(&mask, work.width, work.height);
+            mask.pixels_mut()
+                .for_each(|p| p[0] = if p[0] != 0 { 255 } else { 0 });
+            atomic_write(&mask_out, &png_gray(&mask))?;
+        }
+        bar.inc(1);
+        Ok::<(), DataError>(())
+    })?;
+    bar.finish();
+
+    let manifest = Manifest {
+        name: subject.name.clone(),
+        kind: subject.kind,
+        options: options.clone(),
+        skeleton: body.skeleton.clone(),
+        cameras,
+        views,
+        frames: entries,
+        vertices: body.canonical_vertices.clone(),
+        faces: body.faces.clone(),
+        weights: body.weights.as_slice().to_vec(),
+        canonical_bounds,
+    };
+    let json =
+        serde_json::to_vec(&manifest).map_err(|e| DataError::invalid(&dir, e.to_string()))?;
+    atomic_write(&dir.join(MANIFEST), &json)?;
+    PreparedSubject::open(&dir)
+}
+
+/// The camera of the undistorted image resized by `ratio`: `D = 0`, `K[:2] *= ratio`, size `int(n · ratio)`.
+pub fn working_camera(raw: &Camera, ratio: f32) -> Camera {
+    let mut cam = Camera {
+        distortion: Distortion::default(),
+        ..raw.clone()
+    }
+    .resized(ratio);
+    cam.width = scaled_size(raw.width, ratio);
+    cam.height = scaled_size(raw.height, ratio);
+    cam
+}
+
+fn check_size(path: &Path, (w, h): (u32, u32), cam: &Camera) -> Result<(), DataError> {
+    if (w, h) != (cam.width, cam.height) {
+        return Err(DataError::invalid(
+            path,
+            format!(
+                "is {w}×{h}, expected {}×{} like its camera's first image",
+                cam.width, cam.height
+            ),
+        ));
+    }
+    Ok(())
+}
+
+/// Posed world vertices of a frame (`new_vertices/{i}.npy`, `V × 3` metres).
+fn read_vertices(path: &Path, expected: usize) -> Result<Vec<Vec3>, DataError> {
+    let arr = formats::read_npy(path)?;
+    let v = crate::loaders::finite_points(&arr, path, "vertices")?;
+    if v.len() != expected {
+        return Err(DataError::invalid(
+            path,
+            format!(
+                "holds {} vertices, expected {expected} like lbs/tvertices.npy",
+                v.len()
+            ),
+        ));
+    }
+    Ok(v)
+}
+
+/// A reference volume file (`(Nx, Ny, Nz, K+1)` float32) with the reference's lookup bounds: the box of
+/// `points` padded by 0.05 m.
+fn dataset_volume(
+    path: &Path,
+    points: &[Vec3],
+    options: &PrepareOptions,
+    joints: usize,
+) -> Result<BlendWeightVolume, DataError> {
+    let arr = formats::read_npy(path)?;
+    let s = arr.shape();
+    if s.len() != 4 || s[3] != joints + 1 {
+        return Err(DataError::invalid(
+            path,
+            format!("has shape {s:?}, expected (Nx, Ny, Nz, {})", joints + 1),
+        ));
+    }
+    let bounds = Aabb::from_points(points.iter().copied())
+        .expect("vertices")
+        .padded(options.grid.padding);
+    BlendWeightVolume::new(bounds, [s[0], s[1], s[2]], joints, arr.to_f32())
+        .map_err(|e| DataError::invalid(path, e))
+}
+
+fn fingerprint(
+    subject: &Subject,
+    options: &PrepareOptions,
+    frames: &[usize],
+    views: &[usize],
+) -> Result<String, DataError> {
+    let mut fp = Fingerprint::default();
+    let mut opts = options.clone();
+    opts.cache_dir = PathBuf::new();
+    fp.add("options", &json(&opts));
+    fp.add("name", subject.name.as_bytes());
+    fp.add("root", subject.root.to_string_lossy().as_bytes());
+    fp.add("cameras", &json(&subject.cameras));
+    fp.add("skeleton", &json(&subject.body.skeleton));
+    fp.add("vertices", &json(&subject.body.canonical_vertices));
+    fp.add("faces", &json(&subject.body.faces));
+    fp.add("weights", &json(subject.body.weights.as_slice()));
+    fp.add("views", &json(views));
+    for &f in frames {
+        let rec = &subject.frames[f];
+        fp.add("frame", &json(&(f, rec.file_index, &rec.pose)));
+        fp.add_file(&rec.vertices)?;
+        for &v in views {
+            fp.add_file(&rec.images[v])?;
+            fp.add_file(&rec.masks[v])?;
+        }
+        if options.dataset_volumes {
+            fp.add_file(
+                &subject
+                    .root
+                    .join("lbs/bweights")
+                    .join(format!("{}.npy", rec.file_index)),
+            )?;
+        }
+    }
+    if options.dataset_volumes {
+        fp.add_file(&subject.root.join("lbs/tbw.npy"))?;
+    }
+    Ok(fp.hex())
+}
+
+/// JSON bytes of plain data, for fingerprints.
+fn json<T: Serialize + ?Sized>(v: &T) -> Vec<u8> {
+    serde_json::to_vec(v).expect("plain data serialises")
+}
+
+fn progress_bar(show: bool, len: u64, what: &'static str) -> ProgressBar {
+    let bar = ProgressBar::with_draw_target(
+        Some(len),
+        if show {
+            ProgressDrawTarget::stderr()
+        } else {
+            ProgressDrawTarget::hidden()
+        },
+    );
+    bar.set_style(
+        ProgressStyle::with_template("{msg:>8} [{bar:40}] {pos}/{len} {elapsed}<{eta}")
+            .expect("valid template")
+            .progress_chars("=> "),
+    );
+    bar.set_message(what);
+    bar
+}
+
+fn png_rgb(img: &Rgb32FImage) -> Vec<u8> {
+    let rgb = image::RgbImage::from_fn(img.width(), img.height(), |x, y| {
+        image::Rgb(
+            img.get_pixel(x, y)
+                .0
+                .map(|c| (c.clamp(0.0, 1.0) * 255.0).round() as u8),
+        )
+    });
+    encode_png(image::DynamicImage::ImageRgb8(rgb))
+}
+
+fn png_gray(img: &GrayImage) -> Vec<u8> {
+    encode_png(image::DynamicImage::ImageLuma8(img.clone()))
+}
+
+fn encode_png(img: image::DynamicImage) -> Vec<u8> {
+    let mut out = std::io::Cursor::new(Vec::new());
+    img.write_to(&mut out, image::ImageFormat::Png)
+        .expect("PNG encoding into memory");
+    out.into_inner()
+}

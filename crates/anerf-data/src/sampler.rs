@@ -1,0 +1,389 @@
+//! Training rays (REFERENCE.md §3.3) and evaluation rays (§4.2) of one image.
+//!
+//! Pixels are addressed by integer coordinates (column `u`, row `v`), and rays go through them in the
+//! camera's [`PixelConvention`] (the reference: integer positions, no +0.5). Boxes are world space, metres.
+
+use anerf_core::geometry::{Aabb, Camera, PixelConvention};
+use anerf_core::render::HostRays;
+use anerf_core::{FrameId, ViewId};
+use glam::Vec2;
+use image::{GrayImage, Rgb32FImage};
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+use serde::{Deserialize, Serialize};
+use thiserror::Error;
+
+use crate::error::DataError;
+use crate::prepare::PreparedSubject;
+
+/// How training rays are drawn.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct SamplerOptions {
+    /// Rays per image (`N_rand`).
+    pub rays: usize,
+    /// Share of rays drawn on the body mask (`body_sample_ratio`); the rest uniformly in the projected box.
+    pub body_fraction: f32,
+    /// Never sample the band `dilate(mask) − erode(mask)` of a 5×5 kernel (`erode_edge`). The reference
+    /// computes it at full resolution before resizing; here it is computed on the working-resolution mask.
+    pub skip_mask_edges: bool,
+    /// Extra padding of the (already 0.05 m padded) box for near/far (metres).
+    pub near_far_padding: f32,
+    pub convention: PixelConvention,
+}
+
+impl Default for SamplerOptions {
+    /// The reference's settings: 1024 rays, half on the body, mask edges skipped, +0.01 m for near/far.
+    fn default() -> Self {
+        Self {
+            rays: 1024,
+            body_fraction: 0.5,
+            skip_mask_edges: true,
+            near_far_padding: 0.01,
+            convention: PixelConvention::Integer,
+        }
+    }
+}
+
+/// Why rays could not be drawn.
+#[derive(Debug, Error)]
+pub enum SamplerError {
+    #[error("image is {image:?} but the camera is {camera:?} (width, height)")]
+    SizeMismatch {
+        image: (u32, u32),
+        camera: (u32, u32),
+    },
+    #[error(
+        "no pixel of the projected body box can be sampled (box behind or outside the camera?)"
+    )]
+    EmptyBox,
+    #[error("after {0} rounds no sampled ray hits the body box")]
+    NoHits(usize),
+    #[error(transparent)]
+    Data(#[from] DataError),
+}
+
+/// One image to draw rays from: its camera, the frame's world box (posed vertices ± 0.05 m), the image
+/// (channels in `[0, 1]`) and its mask (non-zero = body).
+#[derive(Debug, Clone, Copy)]
+pub struct ImageView<'a> {
+    pub camera: &'a Camera,
+    pub bounds: &'a Aabb,
+    pub image: &'a Rgb32FImage,
+    pub mask: &'a GrayImage,
+}
+
+/// Draws training rays, deterministically from its seed; its whole state serialises, so a resumed run
+/// continues the same stream.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct RaySampler {
+    pub options: SamplerOptions,
+    rng: ChaCha8Rng,
+}
+
+/// Pixel classes of one training image.
+const BACKGROUND: u8 = 0;
+const BODY: u8 = 1;
+const EDGE: u8 = 100;
+
+impl RaySampler {
+    pub fn new(seed: u64, options: SamplerOptions) -> Self {
+        Self {
+            options,
+            rng: ChaCha8Rng::seed_from_u64(seed),
+        }
+    }
+
+    /// Picks a training image uniformly over `frames × views`, as the reference's loader does.
+    pub fn pick(&mut self, frames: &[FrameId], views: &[ViewId]) -> Option<(FrameId, ViewId)> {
+        if frames.is_empty() || views.is_empty() {
+            return None;
+        }
+        let i = self.rng.random_range(0..frames.len() * views.len());
+        Some((frames[i / views.len()], views[i % views.len()]))
+    }
+
+    /// Exactly `options.rays` rays of one image, with target colours (background and outside-box pixels
+    /// black) and pixel coordinates.
+    pub fn sample(&mut self, view: &ImageView) -> Result<HostRays, SamplerError> {
+        let (w, _) = check_sizes(view)?;
+        let bound = box_mask(view.camera, view.bounds);
+        let mut classes: Vec<u8> = view
+            .mask
+            .pixels()
+            .map(|p| if p[0] != 0 { BODY } else { BACKGROUND })
+            .collect();
+        if self.options.skip_mask_edges {
+            for (c, edge) in classes.iter_mut().zip(edge_band(view.mask)) {
+                if edge {
+                    *c = EDGE;
+                }
+            }
+        }
+        // msk = msk · bound_mask; bound_mask[msk == 100] = 0 (the reference's order).
+        let body: Vec<u32> = (0..classes.len())
+            .filter(|&i| bound[i] && classes[i] == BODY)
+            .map(|i| i as u32)
+            .collect();
+        let boxed: Vec<u32> = (0..classes.len())
+            .filter(|&i| bound[i] && classes[i] != EDGE)
+            .map(|i| i as u32)
+            .collect();
+        if boxed.is_empty() {
+            return Err(SamplerError::EmptyBox);
+        }
+        let gt = |i: usize| -> [f32; 3] {
+            if bound[i] && classes[i] != BACKGROUND {
+                view.image.as_raw()[3 * i..3 * i + 3]
+                    .try_into()
+                    .expect("3 channels")
+            } else {
+                [0.0; 3]
+            }
+        };
+        let hit_box = view.bounds.padded(self.options.near_far_padding);
+        let n = self.options.rays;
+        let mut out = HostRays::default();
+        for _round in 0..ROUNDS {
+            let left = n - out.len();
+            if left == 0 {
+                return Ok(out);
+            }
+            let n_body = if body.is_empty() {
+                0
+            } else {
+                (left as f32 * self.options.body_fraction) as usize
+            };
+            let picks: Vec<u32> = (0..left)
+                .map(|k| {
+                    let pool = if k < n_body { &body } else { &boxed };
+                    pool[self.rng.random_range(0..pool.len())]
+                })
+                .collect();
+            for i in picks {
+                let (u, v) = (i % w, i / w);
+                let ray = view
+                    .camera
+                    .pixel_ray(u as f32, v as f32, self.options.convention);
+                if let Some(hit) = hit_box.intersect(&ray) {
+                    push_ray(&mut out, &ray, hit.near, hit.far, gt(i as usize), [u, v]);
+                }
+            }
+        }
+        if out.len() == n {
+            Ok(out)
+        } else {
+            Err(SamplerError::NoHits(ROUNDS))
+        }
+    }
+
+    /// Reads frame × view of a prepared subject and draws its rays.
+    pub fn sample_prepared(
+        &mut self,
+        subject: &PreparedSubject,
+        frame: FrameId,
+        view: ViewId,
+    ) -> Result<HostRays, SamplerError> {
+        let (image, mask) = (subject.image(frame, view)?, subject.mask(frame, view)?);
+        let bounds = subject
+            .frame(frame)
+            .ok_or_else(|| DataError::invalid(&subject.dir, format!("{frame} was not prepared")))?
+            .bounds;
+        self.sample(&ImageView {
+            camera: &subject.cameras[view.0],
+            bounds: &bounds,
+            image: &image,
+            mask: &mask,
+        })
+    }
+}
+
+/// Resampling rounds before giving up (each round keeps every ray that hits).
+const ROUNDS: usize = 64;
+
+fn push_ray(
+    out: &mut HostRays,
+    ray: &anerf_core::geometry::Ray,
+    near: f32,
+    far: f32,
+    color: [f32; 3],
+    pixel: [u32; 2],
+) {
+    out.origins.push(ray.origin.to_array());
+    out.directions.push(ray.direction.to_array());
+    out.near.push(near);
+    out.far.push(far);
+    out.colors.push(color);
+    out.pixels.push(pixel);
+}
+
+fn check_sizes(view: &ImageView) -> Result<(u32, u32), SamplerError> {
+    let cam = (view.camera.width, view.camera.height);
+    for dims in [view.image.dimensions(), view.mask.dimensions()] {
+        if dims != cam {
+            return Err(SamplerError::SizeMismatch {
+                image: dims,
+                camera: cam,
+            });
+        }
+    }
+    Ok(cam)
+}
+
+/// The mask-edge band `dilate(mask) − erode(mask)` with a 5×5 kernel, row-major; OpenCV's borders (the
+/// image edge neither erodes nor dilates).
+pub fn edge_band(mask: &GrayImage) -> Vec<bool> {
+    let (w, h) = (mask.width() as i64, mask.height() as i64);
+    let fg = |x: i64, y: i64| mask.get_pixel(x as u32, y as u32)[0] != 0;
+    let mut band = Vec::with_capacity((w * h) as usize);
+    for y in 0..h {
+        for x in 0..w {
+            let (mut any, mut all) = (false, true);
+            for yy in (y - 2).max(0)..=(y + 2).min(h - 1) {
+                for xx in (x - 2).max(0)..=(x + 2).min(w - 1) {
+                    let f = fg(xx, yy);
+                    any |= f;
+                    all &= f;
+                }
+            }
+            band.push(any && !all);
+        }
+    }
+    band
+}
+
+/// `bound_mask`: pixels covered by the projection of the box, filled face by face from the rounded
+/// projections of its corners, like the reference's `cv2.fillPoly` of the six faces (interior plus the
+/// 8-connected outline OpenCV draws).
+pub fn box_mask(camera: &Camera, bounds: &Aabb) -> Vec<bool> {
+    let (w, h) = (camera.width as i64, camera.height as i64);
+    let mut mask = vec![false; (w * h) as usize];
+    let corners = bounds.corners();
+    // Aabb::corners orders bit 0 = x, bit 1 = y, bit 2 = z; the six faces as quads.
+    const FACES: [[usize; 4]; 6] = [
+        [0, 2, 6, 4],
+        [1, 3, 7, 5],
+        [0, 1, 5, 4],
+        [2, 3, 7, 6],
+        [0, 1, 3, 2],
+        [4, 5, 7, 6],
+    ];
+    let projected: Vec<Option<Vec2>> = corners
+        .iter()
+        .map(|&c| {
+            camera
+                .project(c, PixelConvention::Integer)
+                .map(|p| p.round())
+        })
+        .collect();
+    for face in FACES {
+        let Some(quad) = face
+            .iter()
+            .map(|&i| projected[i])
+            .collect::<Option<Vec<Vec2>>>()
+        else {
+            continue;
+        };
+        // cv2.fillPoly also draws each edge as an 8-connected line, which can reach half a pixel outside.
+        for k in 0..4 {
+            let (a, b) = (quad[k], quad[(k + 1) % 4]);
+            let steps = (b - a).abs().max_element() as i64;
+            for i in 0..=steps {
+                let t = if steps == 0 {
+                    0.0
+                } else {
+                    i as f32 / steps as f32
+                };
+                let p = (a + (b - a) * t).round();
+                if p.x >= 0.0 && p.y >= 0.0 && (p.x as i64) < w && (p.y as i64) < h {
+                    mask[(p.y as i64 * w + p.x as i64) as usize] = true;
+                }
+            }
+        }
+        let lo = quad.iter().fold(Vec2::splat(f32::MAX), |a, p| a.min(*p));
+        let hi = quad.iter().fold(Vec2::splat(f32::MIN), |a, p| a.max(*p));
+        for y in (lo.y.max(0.0) as i64)..=(hi.y.min((h - 1) as f32) as i64) {
+            for x in (lo.x.max(0.0) as i64)..=(hi.x.min((w - 1) as f32) as i64) {
+                if inside_convex(&quad, Vec2::new(x as f32, y as f32)) {
+                    mask[(y * w + x) as usize] = true;
+                }
+            }
+        }
+    }
+    mask
+}
+
+/// Inside or on the boundary of a convex polygon of either orientation.
+fn inside_convex(poly: &[Vec2], p: Vec2) -> bool {
+    let (mut pos, mut neg) = (false, false);
+    for i in 0..poly.len() {
+        let (a, b) = (poly[i], poly[(i + 1) % poly.len()]);
+        let cross = (b - a).perp_dot(p - a);
+        pos |= cross > 1e-4;
+        neg |= cross < -1e-4;
+    }
+    !(pos && neg)
+}
+
+/// Every ray of one image that hits the box enlarged by `near_far_padding` (`mask_at_box`), for
+/// evaluation and rendering, and the ground truth the metrics compare against.
+#[derive(Debug, Clone)]
+pub struct ImageRays {
+    /// Rays in row-major pixel order, with `pixels` and (when an image was given) `colors`.
+    pub rays: HostRays,
+    pub width: u32,
+    pub height: u32,
+    /// The image with background (mask 0, not eroded) and pixels outside the projected 0.05 m box set to
+    /// black; `None` without an image.
+    pub ground_truth: Option<Rgb32FImage>,
+}
+
+/// All rays of an image whose pixel ray hits `bounds.padded(near_far_padding)` (REFERENCE.md §4.2).
+pub fn image_rays(
+    camera: &Camera,
+    bounds: &Aabb,
+    image: Option<(&Rgb32FImage, &GrayImage)>,
+    options: &SamplerOptions,
+) -> Result<ImageRays, SamplerError> {
+    let (w, h) = (camera.width, camera.height);
+    let ground_truth = match image {
+        Some((img, mask)) => {
+            check_sizes(&ImageView {
+                camera,
+                bounds,
+                image: img,
+                mask,
+            })?;
+            let bound = box_mask(camera, bounds);
+            let mut gt = img.clone();
+            for (i, (px, m)) in gt.pixels_mut().zip(mask.pixels()).enumerate() {
+                if m[0] == 0 || !bound[i] {
+                    px.0 = [0.0; 3];
+                }
+            }
+            Some(gt)
+        }
+        None => None,
+    };
+    let hit_box = bounds.padded(options.near_far_padding);
+    let mut rays = HostRays::default();
+    for v in 0..h {
+        for u in 0..w {
+            let ray = camera.pixel_ray(u as f32, v as f32, options.convention);
+            if let Some(hit) = hit_box.intersect(&ray) {
+                let color = ground_truth
+                    .as_ref()
+                    .map_or([0.0; 3], |g| g.get_pixel(u, v).0);
+                push_ray(&mut rays, &ray, hit.near, hit.far, color, [u, v]);
+            }
+        }
+    }
+    if ground_truth.is_none() {
+        rays.colors.clear();
+    }
+    Ok(ImageRays {
+        rays,
+        width: w,
+        height: h,
+        ground_truth,
+    })
+}

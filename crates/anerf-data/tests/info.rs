@@ -1,0 +1,122 @@
+//! `inspect`: summaries of good folders, and every problem of a folder with several defects at once.
+
+mod common;
+
+use anerf_data::{inspect, DatasetKind, InspectOptions, LoadOptions};
+use common::{copy_tree, fixture};
+
+#[test]
+fn summaries_of_the_fake_datasets() {
+    let r = inspect(
+        &fixture("zju_mocap/CoreView_377"),
+        &InspectOptions::default(),
+    );
+    assert_eq!(r.kind, DatasetKind::ZjuMocap);
+    assert!(!r.has_fatal(), "{r}");
+    assert_eq!(
+        (r.cameras, r.frames, r.joints, r.vertices, r.faces),
+        (Some(4), Some(4), Some(5), Some(40), Some(60))
+    );
+    assert_eq!(r.image_sizes, vec![((48, 40), 4)]);
+    assert_eq!(r.file_indices, Some((0, 3)));
+    assert_eq!(r.problems.len(), 2, "two non-fatal fallbacks: {r}");
+    let present: Vec<&str> = r
+        .optional_files
+        .iter()
+        .filter(|o| o.present)
+        .map(|o| o.name)
+        .collect();
+    assert!(
+        present.contains(&"lbs/tbw.npy")
+            && present.contains(&"lbs/bweights")
+            && !present.contains(&"new_params")
+    );
+    let split = r.split.as_ref().unwrap();
+    assert_eq!(
+        (split.train_views.clone(), split.test_views.clone()),
+        (vec![0], vec![1, 2, 3])
+    );
+    assert_eq!(
+        split.train_frames.count, 4,
+        "clamped to the 4 frames present"
+    );
+    let text = r.to_string();
+    assert!(
+        text.contains("cameras: 4") && text.contains("5 joints"),
+        "{text}"
+    );
+
+    let h = inspect(&fixture("h36m/S9/Posing"), &InspectOptions::default());
+    assert_eq!(h.kind, DatasetKind::H36m);
+    assert!(h.problems.is_empty(), "{h}");
+    assert_eq!(h.image_sizes, vec![((40, 42), 2), ((40, 40), 2)]);
+    let s = h.split.unwrap();
+    assert_eq!(
+        (s.train_views, s.test_views, s.train_frames.frames()),
+        (vec![0, 1, 2], vec![3], vec![0, 5, 10])
+    );
+
+    let z = inspect(
+        &fixture("zju_mocap/CoreView_313"),
+        &InspectOptions {
+            kind: None,
+            load: LoadOptions {
+                body_model: Some(fixture("body_model/tiny_body.npz")),
+            },
+        },
+    );
+    assert!(z.problems.is_empty(), "{z}");
+    assert_eq!(z.file_indices, Some((1, 3)));
+}
+
+#[test]
+fn every_problem_is_listed_not_only_the_first() {
+    let dir = tempfile::tempdir().unwrap();
+    let root = dir.path().join("CoreView_377");
+    copy_tree(&fixture("zju_mocap/CoreView_377"), &root);
+    std::fs::remove_file(root.join("params/2.npy")).unwrap();
+    std::fs::copy(fixture("bad/params_nan.npy"), root.join("params/1.npy")).unwrap();
+    std::fs::remove_file(root.join("vertices/3.npy")).unwrap();
+    image::RgbImage::new(50, 40)
+        .save(root.join("Camera_B3/000002.jpg"))
+        .unwrap();
+    std::fs::write(root.join("Camera_B1/000003.jpg"), b"not a jpeg").unwrap();
+    std::fs::remove_file(root.join("mask_cihp/Camera_B4/000000.png")).unwrap();
+    std::fs::remove_file(root.join("mask_cihp/Camera_B2/000003.png")).unwrap();
+    std::fs::create_dir(root.join("Camera_B9")).unwrap();
+    let r = inspect(&root, &InspectOptions::default());
+    assert!(r.has_fatal());
+    let text = r.to_string();
+    for needle in [
+        "params/2.npy",
+        "params/1.npy",
+        "vertices/3.npy",
+        "Camera_B3/000002.jpg",
+        "Camera_B1/000003.jpg",
+        "params/ (fits",
+        "Camera_B4/000000.png",
+        "Camera_B2/000003.png",
+        "not listed in annots.npy (ignored): Camera_B9",
+    ] {
+        assert!(text.contains(needle), "{needle} not reported:\n{text}");
+    }
+    assert_eq!(r.problems.iter().filter(|p| p.fatal).count(), 7, "{text}");
+    // What could still be counted is summarised.
+    assert_eq!((r.cameras, r.frames, r.joints), (Some(4), Some(4), Some(5)));
+}
+
+#[test]
+fn a_folder_without_annots_reports_that_and_still_checks_lbs() {
+    let dir = tempfile::tempdir().unwrap();
+    let root = dir.path().join("CoreView_377");
+    copy_tree(&fixture("zju_mocap/CoreView_377"), &root);
+    std::fs::remove_file(root.join("annots.npy")).unwrap();
+    std::fs::write(root.join("lbs/tvertices.npy"), b"\x93NUMPY").unwrap();
+    let r = inspect(&root, &InspectOptions::default());
+    let text = r.to_string();
+    assert!(
+        text.contains("annots.npy") && text.contains("tvertices.npy"),
+        "{text}"
+    );
+    assert_eq!(r.problems.iter().filter(|p| p.fatal).count(), 2, "{text}");
+}

@@ -1,0 +1,143 @@
+//! Property test over mutated real files: the `.npy` and pickle parsers return errors on any input, never
+//! panic, and never request an allocation out of proportion to the input (checked by a counting global
+//! allocator). Seeded, so a failure reproduces; the failing input is printed.
+
+mod common;
+
+use std::alloc::{GlobalAlloc, Layout, System};
+use std::sync::atomic::{AtomicUsize, Ordering};
+
+use anerf_data::formats::{npy, pickle};
+use rand::{Rng, SeedableRng};
+
+/// Records the largest single allocation request since the last reset.
+struct Counting;
+
+static LARGEST: AtomicUsize = AtomicUsize::new(0);
+
+unsafe impl GlobalAlloc for Counting {
+    unsafe fn alloc(&self, layout: Layout) -> *mut u8 {
+        LARGEST.fetch_max(layout.size(), Ordering::Relaxed);
+        // SAFETY: forwarded unchanged to the system allocator.
+        unsafe { System.alloc(layout) }
+    }
+    unsafe fn dealloc(&self, ptr: *mut u8, layout: Layout) {
+        // SAFETY: `ptr` came from `System.alloc` with this layout.
+        unsafe { System.dealloc(ptr, layout) }
+    }
+    unsafe fn realloc(&self, ptr: *mut u8, layout: Layout, new_size: usize) -> *mut u8 {
+        LARGEST.fetch_max(new_size, Ordering::Relaxed);
+        // SAFETY: as in `alloc`/`dealloc`.
+        unsafe { System.realloc(ptr, layout, new_size) }
+    }
+}
+
+#[global_allocator]
+static ALLOC: Counting = Counting;
+
+fn corpus() -> Vec<(String, Vec<u8>)> {
+    let mut files = Vec::new();
+    for dir in [
+        "formats",
+        "zju_mocap/CoreView_377",
+        "zju_mocap/CoreView_377/params",
+        "body_model",
+    ] {
+        for entry in std::fs::read_dir(common::fixture(dir)).unwrap() {
+            let path = entry.unwrap().path();
+            let ext = path.extension().and_then(|e| e.to_str()).unwrap_or("");
+            let interesting = ext == "pkl"
+                || (ext == "npy"
+                    && path
+                        .file_name()
+                        .unwrap()
+                        .to_str()
+                        .unwrap()
+                        .contains(['_', 'a', '0']));
+            if interesting && path.is_file() {
+                files.push((path.display().to_string(), std::fs::read(&path).unwrap()));
+            }
+        }
+    }
+    files.sort();
+    assert!(files.len() > 20, "{} corpus files", files.len());
+    files
+}
+
+fn mutate(rng: &mut impl Rng, src: &[u8]) -> Vec<u8> {
+    let mut b = src.to_vec();
+    for _ in 0..rng.random_range(1..4) {
+        if b.is_empty() {
+            b.push(rng.random());
+            continue;
+        }
+        let at = rng.random_range(0..b.len());
+        match rng.random_range(0..6) {
+            0 => b[at] ^= 1 << rng.random_range(0..8),
+            1 => b[at] = [0u8, 0xff, 0x7f, 0x80, b'(', b'.', 0x94, b'h'][rng.random_range(0..8)],
+            2 => b.truncate(at),
+            3 => {
+                let n = rng.random_range(1..16);
+                let junk: Vec<u8> = (0..n).map(|_| rng.random()).collect();
+                b.splice(at..at, junk);
+            }
+            4 => {
+                // A huge length field: what a hostile file would use to force a giant allocation.
+                let big = [0xffu8, 0xff, 0xff, 0x7f, 0xff, 0xff, 0xff, 0x0f];
+                for (i, v) in big.iter().enumerate() {
+                    if at + i < b.len() {
+                        b[at + i] = *v;
+                    }
+                }
+            }
+            _ => {
+                let end = (at + rng.random_range(1..64)).min(b.len());
+                let chunk = b[at..end].to_vec();
+                let to = rng.random_range(0..b.len());
+                b.splice(to..to, chunk);
+            }
+        }
+    }
+    b
+}
+
+#[test]
+fn mutated_files_give_errors_not_panics_or_huge_allocations() {
+    let files = corpus();
+    let mut rng = rand::rngs::StdRng::seed_from_u64(0x5eed_a11e);
+    let (mut ok, mut err) = (0usize, 0usize);
+    for round in 0..1000 {
+        for (name, src) in &files {
+            let input = mutate(&mut rng, src);
+            LARGEST.store(0, Ordering::Relaxed);
+            let result = std::panic::catch_unwind(|| {
+                let a = npy::parse(&input).is_ok();
+                let b = pickle::parse(&input).is_ok();
+                // Also feed the pickle part of object files directly to the unpickler.
+                let body = input
+                    .iter()
+                    .position(|&c| c == b'\n')
+                    .map_or(&input[..0], |i| &input[i + 1..]);
+                let c = pickle::parse(body).is_ok();
+                a || b || c
+            });
+            let largest = LARGEST.load(Ordering::Relaxed);
+            match result {
+                Ok(true) => ok += 1,
+                Ok(false) => err += 1,
+                Err(_) => panic!("round {round}, {name}: parser panicked on {input:?}"),
+            }
+            let cap = 64 * input.len() + (1 << 20);
+            assert!(
+                largest <= cap,
+                "round {round}, {name}: allocation of {largest} bytes for {} input bytes",
+                input.len()
+            );
+        }
+    }
+    println!("fuzz: {} inputs, {ok} parsed, {err} rejected", ok + err);
+    assert!(
+        err > ok / 10,
+        "mutations should mostly break files: {ok} ok, {err} rejected"
+    );
+}

@@ -1,0 +1,186 @@
+//! Ray sampling against the reference's masks and boxes (computed by numpy/OpenCV in
+//! `scripts/fixtures/datasets.py`) and its sampling rules.
+
+mod common;
+
+use anerf_core::{FrameId, ViewId};
+use anerf_data::formats::{self, NdArray};
+use anerf_data::prepare::FrameSelection;
+use anerf_data::sampler::{box_mask, edge_band};
+use anerf_data::{
+    image_rays, load_zju_mocap, prepare, LoadOptions, PrepareOptions, PreparedSubject, RaySampler,
+    SamplerOptions,
+};
+use common::fixture;
+use image::GrayImage;
+
+fn npy(rel: &str) -> NdArray {
+    formats::read_npy(&fixture(rel)).unwrap()
+}
+
+/// The 377-style fixture prepared at full resolution (no distortion), so pixels match the fixtures.
+fn prepared(cache: &std::path::Path) -> PreparedSubject {
+    let subject =
+        load_zju_mocap(&fixture("zju_mocap/CoreView_377"), &LoadOptions::default()).unwrap();
+    let options = PrepareOptions {
+        cache_dir: cache.to_path_buf(),
+        ratio: 1.0,
+        frames: FrameSelection {
+            start: 0,
+            end: Some(2),
+            step: 1,
+        },
+        ..PrepareOptions::default()
+    };
+    prepare(&subject, &options).unwrap()
+}
+
+#[test]
+fn edge_band_matches_opencv_erode_and_dilate() {
+    let a = npy("opencv/disc_mask.npy");
+    let s = a.shape();
+    let mask = GrayImage::from_raw(
+        s[1] as u32,
+        s[0] as u32,
+        a.to_f64().iter().map(|&x| x as u8).collect(),
+    )
+    .unwrap();
+    let expected: Vec<bool> = npy("opencv/disc_edge_band.npy")
+        .to_f64()
+        .iter()
+        .map(|&x| x != 0.0)
+        .collect();
+    assert_eq!(edge_band(&mask), expected);
+}
+
+#[test]
+fn bound_mask_and_mask_at_box_match_the_reference() {
+    let dir = tempfile::tempdir().unwrap();
+    let p = prepared(dir.path());
+    let cam = &p.cameras[0];
+    let bounds = p.frames[0].bounds;
+    let expected: Vec<bool> = npy("zju_mocap/reference_rays/bound_mask.npy")
+        .to_f64()
+        .iter()
+        .map(|&x| x != 0.0)
+        .collect();
+    let ours = box_mask(cam, &bounds);
+    let differ = ours.iter().zip(&expected).filter(|(a, b)| a != b).count();
+    assert_eq!(
+        differ, 0,
+        "bound_mask differs from cv2.fillPoly on {differ} pixels"
+    );
+    let rays = image_rays(cam, &bounds, None, &SamplerOptions::default()).unwrap();
+    let at_box = npy("zju_mocap/reference_rays/mask_at_box.npy").to_f64();
+    let (near, far) = (
+        npy("zju_mocap/reference_rays/near.npy").to_f32(),
+        npy("zju_mocap/reference_rays/far.npy").to_f32(),
+    );
+    let hits: Vec<usize> = rays
+        .rays
+        .pixels
+        .iter()
+        .map(|[u, v]| (v * cam.width + u) as usize)
+        .collect();
+    let expected_hits: Vec<usize> = (0..at_box.len()).filter(|&i| at_box[i] != 0.0).collect();
+    assert_eq!(hits, expected_hits);
+    for (k, &i) in hits.iter().enumerate() {
+        assert!(
+            (rays.rays.near[k] - near[i]).abs() < 1e-4 && (rays.rays.far[k] - far[i]).abs() < 1e-4
+        );
+    }
+}
+
+#[test]
+fn training_rays_follow_the_reference_scheme() {
+    let dir = tempfile::tempdir().unwrap();
+    let p = prepared(dir.path());
+    let (frame, view) = (FrameId(1), ViewId(2));
+    let cam = &p.cameras[view.0];
+    let bounds = p.frame(frame).unwrap().bounds;
+    let (img, mask) = (p.image(frame, view).unwrap(), p.mask(frame, view).unwrap());
+    let bound = box_mask(cam, &bounds);
+    let band = edge_band(&mask);
+    let options = SamplerOptions {
+        rays: 500,
+        ..SamplerOptions::default()
+    };
+    let mut sampler = RaySampler::new(11, options.clone());
+    let rays = sampler.sample_prepared(&p, frame, view).unwrap();
+    assert_eq!(rays.len(), 500);
+    let mut on_body = 0;
+    for k in 0..rays.len() {
+        let [u, v] = rays.pixels[k];
+        let i = (v * cam.width + u) as usize;
+        assert!(
+            bound[i] && !band[i],
+            "pixel {u},{v} is outside the box projection or on the mask edge"
+        );
+        assert!(rays.near[k] < rays.far[k]);
+        let fg = mask.get_pixel(u, v)[0] != 0;
+        on_body += fg as usize;
+        let expect = if fg { img.get_pixel(u, v).0 } else { [0.0; 3] };
+        assert_eq!(rays.colors[k], expect, "target colour of {u},{v}");
+        let ray = cam.pixel_ray(u as f32, v as f32, options.convention);
+        assert!((rays.directions[k][0] - ray.direction.x).abs() < 1e-6);
+    }
+    // Half of the first round is drawn on the body; the uniform half adds some more.
+    assert!((250..450).contains(&on_body), "{on_body} rays on the body");
+}
+
+#[test]
+fn sampling_is_deterministic_and_resumes_from_serialised_state() {
+    let dir = tempfile::tempdir().unwrap();
+    let p = prepared(dir.path());
+    let opts = SamplerOptions {
+        rays: 64,
+        ..SamplerOptions::default()
+    };
+    let frames = [FrameId(0), FrameId(1)];
+    let views: Vec<ViewId> = p.views.clone();
+    let run = |sampler: &mut RaySampler, n: usize| {
+        (0..n)
+            .map(|_| {
+                let (f, v) = sampler.pick(&frames, &views).unwrap();
+                sampler.sample_prepared(&p, f, v).unwrap()
+            })
+            .collect::<Vec<_>>()
+    };
+    let mut a = RaySampler::new(3, opts.clone());
+    let straight = run(&mut a, 6);
+    let mut b = RaySampler::new(3, opts.clone());
+    let mut resumed = run(&mut b, 3);
+    let saved = serde_json::to_string(&b).unwrap();
+    let mut c: RaySampler = serde_json::from_str(&saved).unwrap();
+    resumed.extend(run(&mut c, 3));
+    assert_eq!(straight, resumed);
+    let mut d = RaySampler::new(4, opts);
+    assert_ne!(run(&mut d, 1)[0], straight[0], "another seed, other rays");
+}
+
+#[test]
+fn evaluation_ground_truth_blacks_out_background_and_outside_box() {
+    let dir = tempfile::tempdir().unwrap();
+    let p = prepared(dir.path());
+    let (frame, view) = (FrameId(0), ViewId(1));
+    let cam = &p.cameras[view.0];
+    let bounds = p.frame(frame).unwrap().bounds;
+    let (img, mask) = (p.image(frame, view).unwrap(), p.mask(frame, view).unwrap());
+    let r = image_rays(
+        cam,
+        &bounds,
+        Some((&img, &mask)),
+        &SamplerOptions::default(),
+    )
+    .unwrap();
+    let gt = r.ground_truth.unwrap();
+    let bound = box_mask(cam, &bounds);
+    for (i, (g, (o, m))) in gt.pixels().zip(img.pixels().zip(mask.pixels())).enumerate() {
+        let keep = m[0] != 0 && bound[i];
+        assert_eq!(g.0, if keep { o.0 } else { [0.0; 3] });
+    }
+    for (k, [u, v]) in r.rays.pixels.iter().enumerate() {
+        assert_eq!(r.rays.colors[k], gt.get_pixel(*u, *v).0);
+    }
+    assert!(r.rays.len() > 100 && r.rays.len() < (cam.width * cam.height) as usize);
+}
