@@ -725,7 +725,11 @@ impl<'a> Machine<'a> {
                         Ok(Obj::Leaf(Value::Array(a)))
                     }
                     Descr::Object => Ok(self.arena[arg(1)?].clone()),
-                    _ => self.strings(descr, vec![], self.bytes(arg(1)?, "numpy scalar")?),
+                    // A numpy string scalar (`np.str_`, `np.bytes_`) is just its string.
+                    _ => {
+                        let chunk = self.bytes(arg(1)?, "numpy scalar")?;
+                        Ok(Obj::Leaf(self.string_item(descr, chunk)?))
+                    }
                 }
             }
             Global::FromBuffer => {
