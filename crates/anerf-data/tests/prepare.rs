@@ -392,6 +392,13 @@ fn prepare_writes_a_reusable_cache_and_rebuilds_on_change() {
         std::fs::metadata(&manifest).unwrap().modified().unwrap(),
         stamp
     );
+    // An interrupted run (no manifest yet, an image missing) is completed in place.
+    std::fs::remove_file(&manifest).unwrap();
+    let image_file = p.dir.join("images/000001_02.png");
+    std::fs::remove_file(&image_file).unwrap();
+    let resumed = prepare(&subject, &options(&cache)).unwrap();
+    assert_eq!(resumed.dir, p.dir);
+    assert_eq!(resumed.image(FrameId(1), ViewId(2)).unwrap(), img);
     // Other options or changed inputs: a new entry.
     let half = prepare(
         &subject,
