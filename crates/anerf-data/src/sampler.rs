@@ -232,20 +232,26 @@ fn check_sizes(view: &ImageView) -> Result<(u32, u32), SamplerError> {
 /// The mask-edge band `dilate(mask) − erode(mask)` with a 5×5 kernel, row-major; OpenCV's borders (the
 /// image edge neither erodes nor dilates).
 pub fn edge_band(mask: &GrayImage) -> Vec<bool> {
-    let (w, h) = (mask.width() as i64, mask.height() as i64);
-    let fg = |x: i64, y: i64| mask.get_pixel(x as u32, y as u32)[0] != 0;
-    let mut band = Vec::with_capacity((w * h) as usize);
+    let (w, h) = (mask.width() as usize, mask.height() as usize);
+    let fg: Vec<bool> = mask.pixels().map(|p| p[0] != 0).collect();
+    // Separable 5×5 window: any/all over each row span, then over each column span of those.
+    let window = |n: usize, i: usize| i.saturating_sub(2)..(i + 3).min(n);
+    let mut any_row = vec![false; w * h];
+    let mut all_row = vec![false; w * h];
+    for y in 0..h {
+        let row = &fg[y * w..(y + 1) * w];
+        for x in 0..w {
+            let span = &row[window(w, x)];
+            any_row[y * w + x] = span.iter().any(|&f| f);
+            all_row[y * w + x] = span.iter().all(|&f| f);
+        }
+    }
+    let mut band = vec![false; w * h];
     for y in 0..h {
         for x in 0..w {
-            let (mut any, mut all) = (false, true);
-            for yy in (y - 2).max(0)..=(y + 2).min(h - 1) {
-                for xx in (x - 2).max(0)..=(x + 2).min(w - 1) {
-                    let f = fg(xx, yy);
-                    any |= f;
-                    all &= f;
-                }
-            }
-            band.push(any && !all);
+            let any = window(h, y).any(|yy| any_row[yy * w + x]);
+            let all = window(h, y).all(|yy| all_row[yy * w + x]);
+            band[y * w + x] = any && !all;
         }
     }
     band

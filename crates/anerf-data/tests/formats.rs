@@ -54,6 +54,11 @@ fn check_expected(v: &Value, what: &str) {
     }
     assert_eq!(strings(v, "names"), ["Camera (1)/a b.jpg", "ü"], "{what}");
     assert_eq!(strings(v, "unicode_array"), ["abc", "de"], "{what}");
+    assert_eq!(
+        strings(v, "numpy_str_items"),
+        ["Camera (2)/x.jpg", "y"],
+        "{what}"
+    );
     let nested = v.get("nested").unwrap();
     assert_eq!(
         nested.get("tuple"),

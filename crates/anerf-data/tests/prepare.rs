@@ -337,6 +337,29 @@ fn prepare_writes_a_reusable_cache_and_rebuilds_on_change() {
         assert!((cam.intrinsics.x_axis.x - 0.5 * raw.intrinsics.x_axis.x).abs() < 1e-5);
         assert!((cam.intrinsics.z_axis.y - 0.5 * raw.intrinsics.z_axis.y).abs() < 1e-5);
     }
+    // Frame 2 of camera 1 against the reference loader's OpenCV pipeline (JPEG decoders and uint8
+    // rounding differ by a level or two).
+    let ours = p.image(FrameId(2), ViewId(1)).unwrap();
+    let theirs = npy("zju_mocap/reference_pipeline/image_f2_c1.npy").to_f32();
+    let diffs: Vec<f32> = ours
+        .as_raw()
+        .iter()
+        .zip(&theirs)
+        .map(|(a, b)| (a - b).abs())
+        .collect();
+    let mean = diffs.iter().sum::<f32>() / diffs.len() as f32;
+    let max = diffs.iter().fold(0.0f32, |m, d| m.max(*d));
+    println!("prepared image vs OpenCV pipeline: mean {mean:e}, max {max:e}");
+    assert!(
+        mean < 1.5 / 255.0 && max < 6.0 / 255.0,
+        "mean {mean}, max {max}"
+    );
+    let mask = p.mask(FrameId(2), ViewId(1)).unwrap();
+    let reference = gray(&npy("zju_mocap/reference_pipeline/mask_f2_c1.npy"));
+    let fg = reference.pixels().filter(|m| m[0] != 0).count();
+    let differ = differing(&mask, &reference);
+    println!("prepared mask vs OpenCV pipeline: {differ} of {fg} foreground pixels differ");
+    assert!(fg > 10 && differ * 10 <= fg, "{differ} of {fg}");
     let img = p.image(FrameId(1), ViewId(2)).unwrap();
     assert_eq!(img.dimensions(), (24, 20));
     let mask = p.mask(FrameId(1), ViewId(2)).unwrap();
@@ -369,6 +392,13 @@ fn prepare_writes_a_reusable_cache_and_rebuilds_on_change() {
         std::fs::metadata(&manifest).unwrap().modified().unwrap(),
         stamp
     );
+    // An interrupted run (no manifest yet, an image missing) is completed in place.
+    std::fs::remove_file(&manifest).unwrap();
+    let image_file = p.dir.join("images/000001_02.png");
+    std::fs::remove_file(&image_file).unwrap();
+    let resumed = prepare(&subject, &options(&cache)).unwrap();
+    assert_eq!(resumed.dir, p.dir);
+    assert_eq!(resumed.image(FrameId(1), ViewId(2)).unwrap(), img);
     // Other options or changed inputs: a new entry.
     let half = prepare(
         &subject,

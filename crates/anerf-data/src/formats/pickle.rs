@@ -142,23 +142,19 @@ pub enum PickleError {
 
 /// Parses one pickle.
 pub fn parse(bytes: &[u8]) -> Result<Value, PickleError> {
+    let limit = OUTPUT_FACTOR
+        .saturating_mul(bytes.len())
+        .saturating_add(OUTPUT_SLACK);
     let mut m = Machine {
         input: bytes,
         pos: 0,
         arena: Vec::new(),
         stack: Vec::new(),
         memo: HashMap::new(),
+        built: Budget { left: limit, limit },
     };
     let root = m.run()?;
-    let mut budget = Budget {
-        left: OUTPUT_FACTOR
-            .saturating_mul(bytes.len())
-            .saturating_add(OUTPUT_SLACK),
-        limit: OUTPUT_FACTOR
-            .saturating_mul(bytes.len())
-            .saturating_add(OUTPUT_SLACK),
-    };
-    m.to_value(root, 0, &mut budget)
+    m.to_value(root, 0, &mut Budget { left: limit, limit })
 }
 
 /// The decoded tree may be at most this many times the input (plus [`OUTPUT_SLACK`]): generous for real
@@ -233,6 +229,9 @@ struct Machine<'a> {
     arena: Vec<Obj>,
     stack: Vec<Slot>,
     memo: HashMap<u64, Id>,
+    /// What REDUCE and BUILD may materialise in total (decoded arrays, copied strings and item lists),
+    /// so that many references to one large object cannot multiply it.
+    built: Budget,
 }
 
 struct Budget {
@@ -599,6 +598,7 @@ impl<'a> Machine<'a> {
                     let args = self.pop()?;
                     let callable = self.pop()?;
                     let obj = self.reduce(callable, args)?;
+                    self.built.take(obj_size(&obj))?;
                     self.push(obj);
                 }
                 b'b' => {
@@ -623,9 +623,9 @@ impl<'a> Machine<'a> {
         }
     }
 
-    fn tuple(&self, id: Id, what: &str) -> Result<Vec<Id>, PickleError> {
+    fn tuple(&self, id: Id, what: &str) -> Result<&[Id], PickleError> {
         match &self.arena[id] {
-            Obj::Tuple(v) => Ok(v.clone()),
+            Obj::Tuple(v) => Ok(v),
             _ => Err(self.malformed(format!("{what}: expected a tuple"))),
         }
     }
@@ -693,7 +693,7 @@ impl<'a> Machine<'a> {
         }
     }
 
-    fn reduce(&mut self, callable: Id, args: Id) -> Result<Obj, PickleError> {
+    fn reduce(&self, callable: Id, args: Id) -> Result<Obj, PickleError> {
         let g = self
             .global_of(callable)
             .ok_or_else(|| self.malformed("REDUCE on something that is not a global"))?;
@@ -725,7 +725,11 @@ impl<'a> Machine<'a> {
                         Ok(Obj::Leaf(Value::Array(a)))
                     }
                     Descr::Object => Ok(self.arena[arg(1)?].clone()),
-                    _ => self.strings(descr, vec![], self.bytes(arg(1)?, "numpy scalar")?),
+                    // A numpy string scalar (`np.str_`, `np.bytes_`) is just its string.
+                    _ => {
+                        let chunk = self.bytes(arg(1)?, "numpy scalar")?;
+                        Ok(Obj::Leaf(self.string_item(descr, chunk)?))
+                    }
                 }
             }
             Global::FromBuffer => {
@@ -828,11 +832,10 @@ impl<'a> Machine<'a> {
     fn build(&mut self, target: Id, state: Id) -> Result<(), PickleError> {
         match self.arena[target] {
             Obj::PendingArray => {
-                let mut s = self.tuple(state, "ndarray state")?;
-                if s.len() == 5 {
-                    s.remove(0); // version
-                }
-                let [shape, dtype, fortran, data] = s[..] else {
+                let s = self.tuple(state, "ndarray state")?;
+                // An optional leading version field.
+                let s = if s.len() == 5 { &s[1..] } else { s };
+                let [shape, dtype, fortran, data] = *s else {
                     return Err(self.malformed("ndarray state: expected 4 or 5 fields"));
                 };
                 let shape = self.shape(shape)?;
@@ -864,6 +867,7 @@ impl<'a> Machine<'a> {
                     };
                     self.array(descr, shape, fortran, &bytes)?
                 };
+                self.built.take(obj_size(&obj))?;
                 self.arena[target] = obj;
                 Ok(())
             }
@@ -872,6 +876,7 @@ impl<'a> Machine<'a> {
                 if s.len() < 8 {
                     return Err(self.malformed("dtype state: expected at least 8 fields"));
                 }
+                let s = s[..8].to_vec();
                 let endian = self.text(s[1], "dtype byte order")?;
                 for (i, what) in [(2, "sub-arrays"), (3, "field names"), (4, "fields")] {
                     if !matches!(self.leaf(s[i]), Some(Value::None)) {
@@ -940,6 +945,16 @@ fn latin1(text: &str) -> Option<Vec<u8>> {
     text.chars().map(|c| u8::try_from(c as u32).ok()).collect()
 }
 
+/// Approximate heap bytes of an object made by REDUCE or BUILD.
+fn obj_size(o: &Obj) -> usize {
+    match o {
+        Obj::Leaf(v) => leaf_size(v),
+        Obj::Objects { items, .. } => 8 * items.len(),
+        Obj::Dtype { typestr, .. } => typestr.len(),
+        _ => 0,
+    }
+}
+
 /// Approximate heap bytes of a leaf, for the output budget.
 fn leaf_size(v: &Value) -> usize {
     match v {
@@ -992,6 +1007,31 @@ mod tests {
         }
         p.push(b'.');
         assert!(matches!(parse(&p), Err(PickleError::TooLarge(_))));
+    }
+
+    #[test]
+    fn many_arrays_sharing_one_buffer_cannot_multiply_it() {
+        // One 65535-byte buffer (memo 0), a uint8 dtype (memo 1), then 600 arrays each rebuilt from that
+        // buffer: 39 MB of arrays from ~110 KB of pickle.
+        let n = 0xffffusize;
+        let mut p = vec![0x80, 2, b'B'];
+        p.extend((n as u32).to_le_bytes());
+        p.extend(std::iter::repeat_n(7u8, n));
+        p.extend(b"q\x00cnumpy\ndtype\nX\x02\x00\x00\x00u1\x89\x88\x87R");
+        p.extend(b"(K\x03X\x01\x00\x00\x00|NNNJ\xff\xff\xff\xffJ\xff\xff\xff\xffK\x00tbq\x01(");
+        for _ in 0..600 {
+            p.extend(
+                b"cnumpy.core.multiarray\n_reconstruct\ncnumpy\nndarray\nK\x00\x85C\x01b\x87R",
+            );
+            p.extend(b"(K\x01M\xff\xff\x85h\x01\x89h\x00tb");
+        }
+        p.extend(b"l.");
+        assert!(matches!(parse(&p), Err(PickleError::TooLarge(_))));
+        // The same pickle with only 3 arrays is fine: the limit is proportional, not a fixed cap.
+        let three = [&p[..p.len() - 2 - 597 * 73], b"l."].concat();
+        let v = parse(&three).unwrap();
+        assert_eq!(v.as_seq().map(<[Value]>::len), Some(3));
+        assert_eq!(v.as_seq().unwrap()[2].as_array().unwrap().shape(), &[n]);
     }
 
     #[test]
