@@ -478,7 +478,7 @@ pub fn validate(c: &ExperimentConfig) -> Result<(), ConfigError> {
                 format!("{} → {} (expected positive rates)", s.lr, s.lr_final),
             );
         }
-        if !(s.grad_clip >= 0.0) {
+        if s.grad_clip.is_nan() || s.grad_clip < 0.0 {
             return bad(
                 &format!("{name}.grad_clip"),
                 format!("{} (expected ≥ 0; 0 disables)", s.grad_clip),

@@ -1,4 +1,12 @@
-//! Training for anerf: experiment configs, the stage-1 and stage-2 loops, checkpoints, and the library
-//! behind the `anerf` command-line tool.
+//! Training for anerf: experiment configs, the stage-1 and stage-2 loops, checkpoints, rendering and
+//! evaluation of runs, and the library behind the `anerf` command-line tool.
 
+pub mod checkpoint;
+pub mod cli;
+pub mod commands;
 pub mod config;
+pub mod experiment;
+pub mod render;
+pub mod run_dir;
+pub mod schedule;
+pub mod train;

@@ -1,1 +1,71 @@
-fn main() {}
+//! The `anerf` command-line tool.
+
+use std::process::ExitCode;
+
+use anerf_train::cli::{interrupt_flag, Cli, Command};
+use anerf_train::commands;
+use clap::Parser;
+
+fn main() -> ExitCode {
+    let cli = Cli::parse();
+    match run(cli) {
+        Ok(code) => code,
+        Err(e) => {
+            eprintln!("error: {e:#}");
+            ExitCode::FAILURE
+        }
+    }
+}
+
+fn run(cli: Cli) -> anyhow::Result<ExitCode> {
+    match cli.command {
+        Command::Synth(a) => commands::synth(&a.out, &a.preset, a.seed)?,
+        Command::Info(a) => {
+            if !commands::info(&a.path)? {
+                return Ok(ExitCode::FAILURE);
+            }
+        }
+        Command::Prepare(a) => {
+            commands::prepare(commands::load_config(&a.config, &a.common)?, &a.common)?
+        }
+        Command::Train(a) => {
+            let config = match (&a.config, &a.data) {
+                (Some(path), None) => commands::load_config(path, &a.common)?,
+                (None, Some(data)) => commands::config_for_folder(data, &a)?,
+                _ => anyhow::bail!("give a config file or --data <folder>"),
+            };
+            let run = a
+                .out
+                .clone()
+                .unwrap_or_else(|| std::path::Path::new("runs").join(&config.name));
+            let outcome = commands::train(config, &run, &a.common, a.resume, &interrupt_flag())?;
+            if outcome.interrupted {
+                return Ok(ExitCode::from(130));
+            }
+        }
+        Command::Animate(a) => {
+            if commands::animate(&a.run, &a.common, a.resume, &interrupt_flag())?.interrupted {
+                return Ok(ExitCode::from(130));
+            }
+        }
+        Command::Eval(a) => {
+            commands::eval(&a.run, a.split, &a.common)?;
+        }
+        Command::Compare(a) => {
+            commands::compare(&a.prediction, &a.ground_truth, a.mask.as_deref())?
+        }
+        Command::Render(a) => {
+            let job = match a.novel_poses_from_view {
+                Some(view) => commands::RenderJob::NovelPoses { view },
+                None => commands::RenderJob::Orbit {
+                    frame: a.frame,
+                    views: a.views,
+                    size: a.size,
+                },
+            };
+            commands::render(&a.run, job, &a.common)?;
+        }
+        Command::Demo(a) => commands::demo(&a.out, a.preset, &a.common, &interrupt_flag())?,
+    }
+    Ok(ExitCode::SUCCESS)
+}

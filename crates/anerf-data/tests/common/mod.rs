@@ -35,8 +35,6 @@ pub fn numpy_check(folder: &Path, manifest: &serde_json::Value) {
     println!("{}", stdout.trim());
 }
 
-
-
 /// A fixture path; panics with the script to run when it is missing.
 pub fn fixture(rel: &str) -> PathBuf {
     let path = anerf_core::fixtures_dir().join(rel);

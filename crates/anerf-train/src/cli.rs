@@ -1,0 +1,184 @@
+//! The `anerf` command line: argument parsing only; every command calls library functions.
+
+use std::path::PathBuf;
+use std::sync::atomic::AtomicBool;
+use std::sync::Arc;
+
+use anerf_core::model::ModelPreset;
+use anerf_core::DeviceChoice;
+use clap::{Args, Parser, Subcommand};
+
+/// Animatable human avatars from multi-view video (Animatable NeRF, Peng et al., ICCV 2021).
+#[derive(Debug, Parser)]
+#[command(name = "anerf", version, about)]
+pub struct Cli {
+    #[command(subcommand)]
+    pub command: Command,
+}
+
+#[derive(Debug, Subcommand)]
+pub enum Command {
+    /// Generate a synthetic subject, train both stages, evaluate and render: the whole pipeline on a CPU.
+    Demo(DemoArgs),
+    /// Write a synthetic multi-view video of an animated human in the ZJU-MoCap layout.
+    Synth(SynthArgs),
+    /// Validate a dataset folder (or the folder a config names) and summarise it.
+    Info(InfoArgs),
+    /// Undistort, resize and compute blend-weight volumes into the cache (train does this on demand).
+    Prepare(ConfigArgs),
+    /// Stage 1: fit the canonical radiance field and blend-weight fields to the training video.
+    Train(TrainArgs),
+    /// Stage 2: fit blend-weight fields for the novel-pose frames of a trained run.
+    Animate(RunArgs),
+    /// Render the test views of a run and measure PSNR and SSIM with the paper's protocol.
+    Eval(EvalArgs),
+    /// Render a free-viewpoint orbit or a novel-pose sequence of a run.
+    Render(RenderArgs),
+    /// PSNR and SSIM of two images (with a mask: the paper's protocol).
+    Compare(CompareArgs),
+}
+
+/// Options every command that computes takes.
+#[derive(Debug, Clone, Args)]
+pub struct Common {
+    /// Compute backend (flex, ndarray, wgpu); overrides the config's `device`.
+    #[arg(long)]
+    pub device: Option<DeviceChoice>,
+    /// Override a config value, e.g. `--set train.iterations=1000` (repeatable).
+    #[arg(long = "set", value_name = "SECTION.KEY=VALUE")]
+    pub overrides: Vec<String>,
+    /// No progress bars.
+    #[arg(long)]
+    pub quiet: bool,
+}
+
+#[derive(Debug, Args)]
+pub struct ConfigArgs {
+    /// Experiment config (e.g. configs/zju_mocap/313.toml).
+    pub config: PathBuf,
+    #[command(flatten)]
+    pub common: Common,
+}
+
+#[derive(Debug, Args)]
+pub struct TrainArgs {
+    /// Experiment config; or use `--data` to train on a folder without one.
+    pub config: Option<PathBuf>,
+    /// A subject folder in the ZJU-MoCap layout (instead of a config).
+    #[arg(long, conflicts_with = "config")]
+    pub data: Option<PathBuf>,
+    /// Training cameras, e.g. 0,2,4,6 (default: four evenly spaced cameras).
+    #[arg(long, value_delimiter = ',')]
+    pub train_views: Option<Vec<usize>>,
+    /// Training frames start:end[:step] (default: the first two thirds of the frames).
+    #[arg(long)]
+    pub train_frames: Option<String>,
+    /// Novel-pose frames start:end[:step] (default: the frames after the training frames).
+    #[arg(long)]
+    pub novel_pose_frames: Option<String>,
+    /// Model preset (paper, cpu, tiny).
+    #[arg(long)]
+    pub preset: Option<ModelPreset>,
+    /// Training iterations.
+    #[arg(long)]
+    pub iterations: Option<usize>,
+    /// Run folder (default runs/<name>).
+    #[arg(long)]
+    pub out: Option<PathBuf>,
+    /// Continue from the run's latest checkpoint.
+    #[arg(long)]
+    pub resume: bool,
+    #[command(flatten)]
+    pub common: Common,
+}
+
+#[derive(Debug, Args)]
+pub struct RunArgs {
+    /// A run folder written by `anerf train`.
+    pub run: PathBuf,
+    /// Continue stage 2 from its latest checkpoint.
+    #[arg(long)]
+    pub resume: bool,
+    #[command(flatten)]
+    pub common: Common,
+}
+
+#[derive(Debug, Args)]
+pub struct EvalArgs {
+    pub run: PathBuf,
+    /// novel-view (training frames, test views) or novel-pose (novel-pose frames, test views).
+    #[arg(long, default_value = "novel-view")]
+    pub split: anerf_eval::report::EvalSplit,
+    #[command(flatten)]
+    pub common: Common,
+}
+
+#[derive(Debug, Args)]
+pub struct RenderArgs {
+    pub run: PathBuf,
+    /// Frame to orbit around (a training or novel-pose frame index of the dataset).
+    #[arg(long)]
+    pub frame: Option<usize>,
+    /// Number of orbit views.
+    #[arg(long, default_value_t = 36)]
+    pub views: usize,
+    /// Render the run's novel-pose frames from this camera instead of an orbit.
+    #[arg(long)]
+    pub novel_poses_from_view: Option<usize>,
+    /// Output image size (width = height) of the orbit; default: the dataset's.
+    #[arg(long)]
+    pub size: Option<u32>,
+    #[command(flatten)]
+    pub common: Common,
+}
+
+#[derive(Debug, Args)]
+pub struct SynthArgs {
+    /// Output folder (must not exist).
+    #[arg(long)]
+    pub out: PathBuf,
+    /// tiny (4 views, 10 frames, 64 px) or demo (8 views, 90 frames, 256 px).
+    #[arg(long, default_value = "demo")]
+    pub preset: String,
+    #[arg(long)]
+    pub seed: Option<u64>,
+}
+
+#[derive(Debug, Args)]
+pub struct InfoArgs {
+    /// A dataset folder or an experiment config.
+    pub path: PathBuf,
+}
+
+#[derive(Debug, Args)]
+pub struct CompareArgs {
+    pub prediction: PathBuf,
+    pub ground_truth: PathBuf,
+    #[arg(long)]
+    pub mask: Option<PathBuf>,
+}
+
+#[derive(Debug, Args)]
+pub struct DemoArgs {
+    /// Where the synthetic subject, cache and run go.
+    #[arg(long, default_value = "demo")]
+    pub out: PathBuf,
+    /// Model preset for the demo.
+    #[arg(long, default_value = "cpu")]
+    pub preset: ModelPreset,
+    #[command(flatten)]
+    pub common: Common,
+}
+
+/// Installs the Ctrl-C handler once; the flag it sets makes the training loops checkpoint and stop.
+pub fn interrupt_flag() -> Arc<AtomicBool> {
+    let flag = Arc::new(AtomicBool::new(false));
+    let handler_flag = flag.clone();
+    if let Err(e) = ctrlc::set_handler(move || {
+        eprintln!("\ninterrupted: writing a checkpoint, then stopping (run again with --resume)");
+        handler_flag.store(true, std::sync::atomic::Ordering::SeqCst);
+    }) {
+        eprintln!("warning: cannot install the Ctrl-C handler ({e}); an interrupt will not write a checkpoint");
+    }
+    flag
+}

@@ -1,0 +1,558 @@
+//! What each `anerf` subcommand does, as library functions (the binary only parses arguments).
+
+use std::path::{Path, PathBuf};
+use std::sync::atomic::AtomicBool;
+
+use anerf_core::model::{AnimatableNerf, ModelPreset};
+use anerf_core::{DeviceChoice, FrameId};
+use anerf_data::synthetic::{write_subject, SyntheticSpec};
+use anerf_data::DatasetKind;
+use anerf_eval::report::{markdown_table, EvalRecorder, EvalSplit, Summary};
+use anyhow::{bail, Context, Result};
+use burn::prelude::Device;
+use toml::{Table, Value};
+
+use crate::checkpoint::Checkpoint;
+use crate::cli::Common;
+use crate::config::{self, ExperimentConfig, FrameRange};
+use crate::experiment::Experiment;
+use crate::render::render_view;
+use crate::run_dir::RunDir;
+use crate::train::{train_stage1, train_stage2, StageOutcome, TrainOptions};
+
+/// The device named by `--device`, else by the config.
+pub fn device(config: &ExperimentConfig, common: &Common) -> Result<Device> {
+    let choice: DeviceChoice = common.device.unwrap_or(config.device);
+    choice.device().map_err(anyhow::Error::msg)
+}
+
+/// Loads a config file with `--set` overrides.
+pub fn load_config(path: &Path, common: &Common) -> Result<ExperimentConfig> {
+    config::load(path, &common.overrides).with_context(|| format!("in config {}", path.display()))
+}
+
+/// `anerf synth`.
+pub fn synth(out: &Path, preset: &str, seed: Option<u64>) -> Result<()> {
+    let mut spec = match preset {
+        "tiny" => SyntheticSpec::tiny(),
+        "demo" => SyntheticSpec::demo(),
+        other => bail!("unknown synthetic preset '{other}': expected tiny or demo"),
+    };
+    if let Some(s) = seed {
+        spec.seed = s;
+    }
+    let summary = write_subject(&spec, out)
+        .with_context(|| format!("writing the synthetic subject to {}", out.display()))?;
+    println!(
+        "wrote {} ({} cameras, {} frames) in {:.1} s",
+        out.display(),
+        summary.subject.cameras.len(),
+        summary.subject.frames.len(),
+        summary.timings.total.as_secs_f64()
+    );
+    Ok(())
+}
+
+/// Config of a folder trained without a config file (`anerf train --data`): the folder's `splits.json`
+/// (written by `anerf synth`) or sensible defaults, then the flags, then `--set`.
+pub fn config_for_folder(data: &Path, args: &crate::cli::TrainArgs) -> Result<ExperimentConfig> {
+    let kind = anerf_data::loaders::detect_kind(data);
+    let subject = anerf_data::load(data, kind, &Default::default()).with_context(|| {
+        format!(
+            "reading {} (expected a subject folder in the ZJU-MoCap layout)",
+            data.display()
+        )
+    })?;
+    let cameras = subject.cameras.len();
+    let frames = subject.frames.len();
+    let splits: Option<anerf_data::synthetic::Splits> =
+        std::fs::read_to_string(data.join("splits.json"))
+            .ok()
+            .and_then(|t| serde_json::from_str(&t).ok());
+    let (views, train, novel) = match &splits {
+        Some(s) => (
+            s.training_views.clone(),
+            span(&s.training_frames),
+            span(&s.novel_pose_frames),
+        ),
+        None => {
+            let views: Vec<usize> = (0..4.min(cameras))
+                .map(|i| i * cameras / 4.min(cameras))
+                .collect();
+            let cut = (frames * 2 / 3).max(1);
+            (views, format!("0:{cut}"), format!("{cut}:{frames}"))
+        }
+    };
+    let name = data
+        .file_name()
+        .and_then(|n| n.to_str())
+        .unwrap_or("subject")
+        .replace(['/', '\\'], "_");
+    let ratio = if subject.cameras.first().is_some_and(|c| c.width >= 1000) {
+        0.5
+    } else {
+        1.0
+    };
+    let mut table: Table = toml::from_str(&format!(
+        r#"
+name = "{name}"
+[dataset]
+format = "{format}"
+root = "{root}"
+ratio = {ratio}
+train_views = {views:?}
+iccv = {{ train_frames = "{train}", novel_pose_frames = "{novel}" }}
+[model]
+preset = "cpu"
+"#,
+        format = if kind == DatasetKind::H36m {
+            "h36m"
+        } else {
+            "zju_mocap"
+        },
+        root = data.display().to_string().replace('\\', "/"),
+    ))?;
+    let mut merged = config::defaults();
+    config::merge(&mut merged, std::mem::take(&mut table));
+    let set = |key: &str, value: Value| {
+        let mut t = Table::new();
+        t.insert(key.to_string(), value);
+        t
+    };
+    let mut overrides = Vec::new();
+    if let Some(v) = &args.train_views {
+        overrides.push((
+            "dataset",
+            set(
+                "train_views",
+                Value::Array(v.iter().map(|&x| Value::Integer(x as i64)).collect()),
+            ),
+        ));
+    }
+    if let Some(p) = args.preset {
+        overrides.push(("model", set("preset", Value::String(p.name().into()))));
+    }
+    if let Some(n) = args.iterations {
+        overrides.push(("train", set("iterations", Value::Integer(n as i64))));
+    }
+    for (section, values) in overrides {
+        let mut t = Table::new();
+        t.insert(section.into(), Value::Table(values));
+        config::merge(&mut merged, t);
+    }
+    for (key, value) in [
+        ("train_frames", &args.train_frames),
+        ("novel_pose_frames", &args.novel_pose_frames),
+    ] {
+        if let Some(v) = value {
+            v.parse::<FrameRange>()
+                .map_err(|e| anyhow::anyhow!("--{}: {e}", key.replace('_', "-")))?;
+            config::apply_override(&mut merged, &format!("dataset.iccv.{key}=\"{v}\""))?;
+        }
+    }
+    for o in &args.common.overrides {
+        config::apply_override(&mut merged, o)?;
+    }
+    Ok(config::from_table(merged)?)
+}
+
+/// `"a:b"` covering a sorted list of consecutive frame indices (`splits.json` lists them explicitly).
+fn span(frames: &[usize]) -> String {
+    match (frames.first(), frames.last()) {
+        (Some(a), Some(b)) => format!("{a}:{}", b + 1),
+        _ => "0:0".into(),
+    }
+}
+
+/// `anerf train`: stage 1 into `run`.
+pub fn train(
+    config: ExperimentConfig,
+    run: &Path,
+    common: &Common,
+    resume: bool,
+    stop: &AtomicBool,
+) -> Result<StageOutcome> {
+    let device = device(&config, common)?.autodiff();
+    let run = RunDir::create(run)?;
+    if resume {
+        let saved = run.read_config()?;
+        if saved.model != config.model {
+            bail!(
+                "--resume: the config's [model] differs from the run's {}",
+                run.config_path().display()
+            );
+        }
+    }
+    run.write_config(&config)?;
+    let mut exp = Experiment::open(config, device, !common.quiet)?;
+    let outcome = train_stage1(
+        &mut exp,
+        &run,
+        TrainOptions {
+            resume,
+            progress: !common.quiet,
+        },
+        stop,
+    )?;
+    report_outcome("stage 1", &outcome, &run);
+    Ok(outcome)
+}
+
+/// `anerf animate`: stage 2 of a run.
+pub fn animate(
+    run: &Path,
+    common: &Common,
+    resume: bool,
+    stop: &AtomicBool,
+) -> Result<StageOutcome> {
+    let run = RunDir::open(run)?;
+    let mut config = run.read_config()?;
+    apply_overrides(&mut config, common)?;
+    let device = device(&config, common)?.autodiff();
+    let mut exp = Experiment::open(config, device, !common.quiet)?;
+    let outcome = train_stage2(
+        &mut exp,
+        &run,
+        TrainOptions {
+            resume,
+            progress: !common.quiet,
+        },
+        stop,
+    )?;
+    report_outcome("stage 2", &outcome, &run);
+    Ok(outcome)
+}
+
+fn apply_overrides(config: &mut ExperimentConfig, common: &Common) -> Result<()> {
+    if common.overrides.is_empty() {
+        return Ok(());
+    }
+    let mut table: Table = toml::from_str(&config::to_toml(config))?;
+    for o in &common.overrides {
+        config::apply_override(&mut table, o)?;
+    }
+    *config = config::from_table(table)?;
+    Ok(())
+}
+
+fn report_outcome(stage: &str, o: &StageOutcome, run: &RunDir) {
+    let how = if o.interrupted {
+        "interrupted"
+    } else {
+        "finished"
+    };
+    eprintln!(
+        "{stage} {how} after {} steps in {:.0} s (last loss {:.5}); checkpoints in {}",
+        o.steps,
+        o.seconds,
+        o.loss,
+        run.checkpoints().display()
+    );
+}
+
+/// The run's newest model: stage 2 if it exists, else stage 1.
+pub fn load_trained(
+    run: &RunDir,
+    config: &ExperimentConfig,
+    device: &Device,
+) -> Result<AnimatableNerf> {
+    let ck = match Checkpoint::latest(&run.checkpoints(), 2)? {
+        Some(ck) => ck,
+        None => Checkpoint::latest(&run.checkpoints(), 1)?.with_context(|| {
+            format!(
+                "{} has no checkpoint; run `anerf train` first",
+                run.root.display()
+            )
+        })?,
+    };
+    Ok(ck.load_model(&config.model, device)?.0)
+}
+
+/// `anerf eval`: renders every test view of every `eval.frame_interval`-th frame of the split and writes
+/// `<run>/eval/<split>/` (per-image metrics, images, summary).
+pub fn eval(run_path: &Path, split: EvalSplit, common: &Common) -> Result<Summary> {
+    let run = RunDir::open(run_path)?;
+    let mut config = run.read_config()?;
+    apply_overrides(&mut config, common)?;
+    let device = device(&config, common)?;
+    let model = load_trained(&run, &config, &device)?;
+    let mut exp = Experiment::open(config, device, !common.quiet)?;
+    let frames: Vec<FrameId> = match split {
+        EvalSplit::NovelView => exp.train_frames.clone(),
+        EvalSplit::NovelPose => {
+            if model.novel_blend.is_none() {
+                bail!("{} has no stage-2 checkpoint; run `anerf animate {}` before a novel-pose evaluation", run.root.display(), run.root.display());
+            }
+            exp.novel_frames.clone()
+        }
+    };
+    let frames: Vec<FrameId> = frames
+        .into_iter()
+        .step_by(exp.config.eval.frame_interval)
+        .collect();
+    let views = exp.test_views.clone();
+    if frames.is_empty() || views.is_empty() {
+        bail!(
+            "the {split} split of {} has no frames or no test views",
+            run.root.display()
+        );
+    }
+    let dir = run.eval().join(split.name());
+    let mut recorder = EvalRecorder::new(&dir, split);
+    let bar = indicatif::ProgressBar::new((frames.len() * views.len()) as u64);
+    if common.quiet {
+        bar.set_draw_target(indicatif::ProgressDrawTarget::hidden());
+    }
+    let chunk = exp.config.eval.chunk;
+    for &frame in &frames {
+        for &view in &views {
+            let camera = exp.prepared.cameras[view.0].clone();
+            let image = render_view(&model, &mut exp, frame, &camera, Some(view), chunk)?;
+            let gt = image
+                .ground_truth
+                .as_ref()
+                .expect("dataset views have images");
+            recorder.add(frame, view, &image.prediction, gt, &image.mask)?;
+            bar.inc(1);
+        }
+    }
+    bar.finish_and_clear();
+    let summary = recorder.finish()?;
+    println!(
+        "{}",
+        markdown_table(
+            "split",
+            &[(format!("{} {split}", exp.config.name), summary)]
+        )
+    );
+    println!("per-image metrics and images in {}", dir.display());
+    Ok(summary)
+}
+
+/// `anerf compare`.
+pub fn compare(pred: &Path, gt: &Path, mask: Option<&Path>) -> Result<()> {
+    let c = anerf_eval::compare_files(pred, gt, mask)?;
+    println!("{c}");
+    Ok(())
+}
+
+/// `anerf info`.
+pub fn info(path: &Path) -> Result<bool> {
+    let root: PathBuf = if path.extension().is_some_and(|e| e == "toml") {
+        config::load(path, &[])?.dataset.root
+    } else {
+        path.to_path_buf()
+    };
+    let report = anerf_data::inspect(&root, &Default::default());
+    println!("{report}");
+    Ok(!report.has_fatal())
+}
+
+/// `anerf prepare`.
+pub fn prepare(config: ExperimentConfig, common: &Common) -> Result<()> {
+    let device = device(&config, common)?;
+    let exp = Experiment::open(config, device, !common.quiet)?;
+    println!(
+        "prepared {} frames of {} in {}",
+        exp.prepared.frames.len(),
+        exp.prepared.name,
+        exp.prepared.dir.display()
+    );
+    Ok(())
+}
+
+/// The model presets, for help texts.
+pub fn preset_names() -> String {
+    ModelPreset::ALL
+        .iter()
+        .map(|p| p.name())
+        .collect::<Vec<_>>()
+        .join(", ")
+}
+
+/// What `anerf render` draws.
+#[derive(Debug, Clone, Copy)]
+pub enum RenderJob {
+    /// `views` cameras orbiting dataset frame `frame` (default: the first training frame).
+    Orbit {
+        frame: Option<usize>,
+        views: usize,
+        size: Option<u32>,
+    },
+    /// Every novel-pose frame of the run from dataset camera `view` (needs stage 2).
+    NovelPoses { view: usize },
+}
+
+/// `anerf render`: PNG frames, an animated GIF and (with ffmpeg on PATH) an MP4 under `<run>/renders/`.
+/// Returns the GIF's path.
+pub fn render(run_path: &Path, job: RenderJob, common: &Common) -> Result<PathBuf> {
+    let run = RunDir::open(run_path)?;
+    let mut config = run.read_config()?;
+    apply_overrides(&mut config, common)?;
+    let device = device(&config, common)?;
+    let model = load_trained(&run, &config, &device)?;
+    let mut exp = Experiment::open(config, device, !common.quiet)?;
+    let (name, shots): (String, Vec<(FrameId, anerf_core::geometry::Camera)>) = match job {
+        RenderJob::Orbit { frame, views, size } => {
+            let frame = frame.map(FrameId).unwrap_or(exp.train_frames[0]);
+            if matches!(
+                exp.frame_code(frame)?.0,
+                anerf_core::model::FrameCode::Novel(_)
+            ) && model.novel_blend.is_none()
+            {
+                bail!("{frame} is a novel pose; run `anerf animate` first");
+            }
+            let bounds = exp
+                .prepared
+                .frame(frame)
+                .with_context(|| format!("{frame} was not prepared"))?
+                .bounds;
+            let mut reference = exp.prepared.cameras[exp.train_views[0].0].clone();
+            if let Some(s) = size {
+                reference = reference.resized(s as f32 / reference.width as f32);
+            }
+            let up = crate::render::mean_up(&exp.prepared.cameras);
+            let center = (bounds.min + bounds.max) * 0.5;
+            let cams = crate::render::orbit(&reference, center, up, views.max(1));
+            (
+                format!("orbit_frame{:06}", frame.0),
+                cams.into_iter().map(|c| (frame, c)).collect(),
+            )
+        }
+        RenderJob::NovelPoses { view } => {
+            if model.novel_blend.is_none() {
+                bail!(
+                    "{} has no stage-2 checkpoint; run `anerf animate` first",
+                    run.root.display()
+                );
+            }
+            let camera = exp.prepared.cameras.get(view).cloned().with_context(|| {
+                format!(
+                    "view {view} does not exist (the dataset has {} cameras)",
+                    exp.prepared.cameras.len()
+                )
+            })?;
+            (
+                format!("novel_poses_view{view:02}"),
+                exp.novel_frames
+                    .iter()
+                    .map(|&f| (f, camera.clone()))
+                    .collect(),
+            )
+        }
+    };
+    let dir = run.renders().join(&name);
+    let bar = indicatif::ProgressBar::new(shots.len() as u64);
+    if common.quiet {
+        bar.set_draw_target(indicatif::ProgressDrawTarget::hidden());
+    }
+    let chunk = exp.config.eval.chunk;
+    let mut frames = Vec::with_capacity(shots.len());
+    for (i, (frame, camera)) in shots.iter().enumerate() {
+        let image = render_view(&model, &mut exp, *frame, camera, None, chunk)?;
+        anerf_eval::images::write_png(
+            &dir.join(format!("{i:04}.png")),
+            &image.prediction,
+            anerf_eval::images::PngDepth::Eight,
+        )?;
+        frames.push(image.prediction);
+        bar.inc(1);
+    }
+    bar.finish_and_clear();
+    let gif = run.renders().join(format!("{name}.gif"));
+    anerf_eval::images::write_gif(&gif, &frames, 12)?;
+    if let anerf_eval::images::VideoOutcome::Written(mp4) =
+        anerf_eval::images::write_mp4(&run.renders().join(format!("{name}.mp4")), &frames, 12)?
+    {
+        println!("wrote {}", mp4.display());
+    }
+    println!(
+        "wrote {} frames to {} and {}",
+        frames.len(),
+        dir.display(),
+        gif.display()
+    );
+    Ok(gif)
+}
+
+/// The experiment of `anerf demo` (also `configs/demo.toml`).
+pub const DEMO_CONFIG: &str = include_str!("../../../configs/demo.toml");
+
+/// `anerf demo`: synthesises the demo subject (once), trains both stages, evaluates novel views and novel
+/// poses, renders a turntable of a novel pose and prints a summary. Re-running continues where it stopped.
+pub fn demo(out: &Path, preset: ModelPreset, common: &Common, stop: &AtomicBool) -> Result<()> {
+    let started = std::time::Instant::now();
+    let subject = out.join("subject");
+    if !subject.join("annots.npy").is_file() {
+        synth(&subject, "demo", None)?;
+    }
+    let mut table = config::defaults();
+    config::merge(
+        &mut table,
+        toml::from_str(DEMO_CONFIG).expect("the demo config is valid TOML"),
+    );
+    let quote = |p: &Path| format!("\"{}\"", p.display().to_string().replace('\\', "/"));
+    config::apply_override(&mut table, &format!("dataset.root={}", quote(&subject)))?;
+    config::apply_override(
+        &mut table,
+        &format!("dataset.cache={}", quote(&out.join("cache"))),
+    )?;
+    config::apply_override(&mut table, &format!("model.preset=\"{}\"", preset.name()))?;
+    for o in &common.overrides {
+        config::apply_override(&mut table, o)?;
+    }
+    let config = config::from_table(table)?;
+    let run = out.join("run");
+    let mut times = Vec::new();
+
+    let resume = Checkpoint::latest(&run.join("checkpoints"), 1)?.is_some();
+    let t = std::time::Instant::now();
+    if train(config, &run, common, resume, stop)?.interrupted {
+        return Ok(());
+    }
+    times.push(("stage 1 (train)", t.elapsed()));
+    let resume = Checkpoint::latest(&run.join("checkpoints"), 2)?.is_some();
+    let t = std::time::Instant::now();
+    if animate(&run, common, resume, stop)?.interrupted {
+        return Ok(());
+    }
+    times.push(("stage 2 (animate)", t.elapsed()));
+    let t = std::time::Instant::now();
+    let nv = eval(&run, EvalSplit::NovelView, common)?;
+    let np = eval(&run, EvalSplit::NovelPose, common)?;
+    times.push(("evaluation", t.elapsed()));
+    let t = std::time::Instant::now();
+    let rundir = RunDir::open(&run)?;
+    let cfg = rundir.read_config()?;
+    let novel = cfg.dataset.split().novel_pose_frames;
+    let frame = (novel.start + novel.end) / 2;
+    let gif = render(
+        &run,
+        RenderJob::Orbit {
+            frame: Some(frame),
+            views: 24,
+            size: None,
+        },
+        common,
+    )?;
+    times.push(("turntable render", t.elapsed()));
+
+    println!("\nanerf demo: {} (preset {})", run.display(), preset.name());
+    println!(
+        "{}",
+        markdown_table(
+            "split",
+            &[("novel view".into(), nv), ("novel pose".into(), np)]
+        )
+    );
+    for (what, d) in &times {
+        println!("  {what:<20} {:>7.1} s", d.as_secs_f64());
+    }
+    println!(
+        "  {:<20} {:>7.1} s",
+        "total",
+        started.elapsed().as_secs_f64()
+    );
+    println!("turntable of a novel pose: {}", gif.display());
+    Ok(())
+}

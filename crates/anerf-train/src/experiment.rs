@@ -1,0 +1,214 @@
+//! An experiment opened for work: its resolved config, the prepared subject, the splits, and per-frame
+//! model inputs on the device (uploaded once, then reused).
+
+use std::collections::HashMap;
+use std::path::Path;
+
+use anerf_core::geometry::skinning::BoneMatrices;
+use anerf_core::model::{CanonicalInputs, FrameCode, FrameInputs, ModelSizes};
+use anerf_core::{FrameId, ViewId};
+use anerf_data::prepare::{FrameSelection, NearestMethod};
+use anerf_data::{DatasetKind, LoadOptions, PrepareOptions, PreparedSubject};
+use anyhow::{bail, Context, Result};
+use burn::prelude::Device;
+
+use crate::config::{DatasetFormat, ExperimentConfig, VolumeSource};
+
+/// A config together with the data it names, ready for training, evaluation or rendering.
+pub struct Experiment {
+    pub config: ExperimentConfig,
+    pub prepared: PreparedSubject,
+    pub train_frames: Vec<FrameId>,
+    pub novel_frames: Vec<FrameId>,
+    pub train_views: Vec<ViewId>,
+    pub test_views: Vec<ViewId>,
+    pub device: Device,
+    canonical: CanonicalInputs,
+    frames: HashMap<FrameId, FrameInputs>,
+}
+
+/// The frame positions of a range, every `interval`-th, cut to the frames that exist.
+fn frames_of(range: &crate::config::FrameRange, interval: usize, available: usize) -> Vec<FrameId> {
+    range
+        .frames()
+        .into_iter()
+        .step_by(interval.max(1))
+        .filter(|&f| f < available)
+        .map(FrameId)
+        .collect()
+}
+
+impl Experiment {
+    /// Loads the dataset, checks the views and frames against it, prepares (or reuses) the cache and uploads
+    /// the canonical body to `device`.
+    pub fn open(config: ExperimentConfig, device: Device, progress: bool) -> Result<Self> {
+        let d = &config.dataset;
+        let kind = match d.format {
+            DatasetFormat::ZjuMocap => DatasetKind::ZjuMocap,
+            DatasetFormat::H36m => DatasetKind::H36m,
+        };
+        if !d.root.is_dir() {
+            bail!(
+                "dataset.root {} is not a folder (expected a {:?} subject folder)",
+                d.root.display(),
+                d.format
+            );
+        }
+        let subject = anerf_data::load(
+            &d.root,
+            kind,
+            &LoadOptions {
+                body_model: d.body_model.clone(),
+            },
+        )
+        .with_context(|| {
+            format!(
+                "loading the dataset named by dataset.root = {}",
+                d.root.display()
+            )
+        })?;
+        let cameras = subject.cameras.len();
+        let available = subject.frames.len();
+        for &v in &d.train_views {
+            if v >= cameras {
+                bail!(
+                    "dataset.train_views contains {v}, but {} has cameras 0..{cameras}",
+                    d.root.display()
+                );
+            }
+        }
+        let test_views: Vec<usize> = if d.test_views.is_empty() {
+            (0..cameras)
+                .filter(|v| !d.train_views.contains(v))
+                .collect()
+        } else {
+            d.test_views.clone()
+        };
+        if let Some(v) = test_views.iter().find(|&&v| v >= cameras) {
+            bail!(
+                "dataset.test_views contains {v}, but {} has cameras 0..{cameras}",
+                d.root.display()
+            );
+        }
+        let split = d.split();
+        let train_frames = frames_of(&split.train_frames, d.frame_interval, available);
+        let novel_frames = frames_of(&split.novel_pose_frames, d.frame_interval, available);
+        if train_frames.is_empty() {
+            bail!(
+                "dataset.{:?}.train_frames = {} selects none of the {available} frames of {}",
+                d.ranges,
+                split.train_frames,
+                d.root.display()
+            );
+        }
+        let all: Vec<usize> = train_frames
+            .iter()
+            .chain(&novel_frames)
+            .map(|f| f.0)
+            .collect();
+        let (lo, hi) = (
+            *all.iter().min().unwrap_or(&0),
+            *all.iter().max().unwrap_or(&0),
+        );
+        let step = if all.iter().all(|f| (f - lo) % d.frame_interval == 0) {
+            d.frame_interval
+        } else {
+            1
+        };
+        let views: Vec<usize> = {
+            let mut v: Vec<usize> = d.train_views.iter().chain(&test_views).copied().collect();
+            v.sort_unstable();
+            v.dedup();
+            v
+        };
+        let options = PrepareOptions {
+            cache_dir: d.cache.clone(),
+            ratio: d.ratio,
+            frames: FrameSelection {
+                start: lo,
+                end: Some(hi + 1),
+                step,
+            },
+            views: Some(views),
+            nearest: match d.volumes {
+                VolumeSource::NearestVertex => NearestMethod::Vertex,
+                _ => NearestMethod::Surface,
+            },
+            dataset_volumes: d.volumes == VolumeSource::Dataset,
+            progress,
+            ..PrepareOptions::default()
+        };
+        let prepared = anerf_data::prepare(&subject, &options)
+            .context("preparing the dataset (anerf prepare)")?;
+        let canonical = CanonicalInputs {
+            volume: prepared.canonical_volume()?.to_tensor(&device),
+            bounds: prepared.canonical.bounds,
+        };
+        Ok(Self {
+            train_views: d.train_views.iter().map(|&v| ViewId(v)).collect(),
+            test_views: test_views.into_iter().map(ViewId).collect(),
+            config,
+            prepared,
+            train_frames,
+            novel_frames,
+            device,
+            canonical,
+            frames: HashMap::new(),
+        })
+    }
+
+    /// Sizes of the model this experiment trains.
+    pub fn model_sizes(&self) -> ModelSizes {
+        ModelSizes {
+            training_frames: self.train_frames.len(),
+            joints: self.prepared.skeleton.num_joints(),
+        }
+    }
+
+    /// The canonical body on the device.
+    pub fn canonical(&self) -> &CanonicalInputs {
+        &self.canonical
+    }
+
+    /// How frame `id` is conditioned: its own codes if it is a training frame, the stage-2 codes if it is a
+    /// novel-pose frame; the appearance code of a novel pose is the last training frame's on ZJU-MoCap and
+    /// the first one's on Human3.6M (the reference's rule).
+    pub fn frame_code(&self, id: FrameId) -> Result<(FrameCode, usize)> {
+        if let Some(f) = self.train_frames.iter().position(|&t| t == id) {
+            return Ok((FrameCode::Training(f), f));
+        }
+        if let Some(j) = self.novel_frames.iter().position(|&t| t == id) {
+            let appearance = match self.prepared.kind {
+                DatasetKind::H36m => 0,
+                _ => self.train_frames.len() - 1,
+            };
+            return Ok((FrameCode::Novel(j), appearance));
+        }
+        bail!("{id} is neither a training nor a novel-pose frame of this experiment")
+    }
+
+    /// Model inputs of frame `id` on the device (uploaded on first use; the clone shares the tensors).
+    pub fn frame_inputs(&mut self, id: FrameId) -> Result<FrameInputs> {
+        if !self.frames.contains_key(&id) {
+            let (code, appearance) = self.frame_code(id)?;
+            let frame = self
+                .prepared
+                .frame(id)
+                .with_context(|| format!("{id} was not prepared"))?;
+            let inputs = FrameInputs {
+                bones: BoneMatrices::new(&frame.bones, &self.device),
+                global: frame.pose.global,
+                volume: self.prepared.volume(id)?.to_tensor(&self.device),
+                code,
+                appearance,
+            };
+            self.frames.insert(id, inputs);
+        }
+        Ok(self.frames[&id].clone())
+    }
+
+    /// The experiment's run folder under `runs`.
+    pub fn default_run_dir(&self, runs: &Path) -> std::path::PathBuf {
+        runs.join(&self.config.name)
+    }
+}

@@ -1,0 +1,148 @@
+//! Rendering whole images of a frame from a camera with a trained model.
+
+use anerf_core::geometry::Camera;
+use anerf_core::model::AnimatableNerf;
+use anerf_core::render::RayBatch;
+use anerf_core::tensor::to_host;
+use anerf_core::{FrameId, ViewId};
+use anerf_data::{image_rays, SamplerOptions};
+use anerf_eval::{ImageSize, PixelMask, RgbImageF32};
+use anyhow::{Context, Result};
+
+use crate::experiment::Experiment;
+
+/// A rendered image with what the protocol compares it against.
+pub struct RenderedImage {
+    /// Prediction on black, black outside `mask`.
+    pub prediction: RgbImageF32,
+    /// Ground truth with background and out-of-box pixels black (when the view has an image).
+    pub ground_truth: Option<RgbImageF32>,
+    /// Pixels whose ray hits the padded body box (`mask_at_box`).
+    pub mask: PixelMask,
+}
+
+/// Renders frame `frame` as seen by camera `camera` (a dataset view when `view` is given, whose image then
+/// serves as ground truth), `chunk` rays at a time.
+pub fn render_view(
+    model: &AnimatableNerf,
+    exp: &mut Experiment,
+    frame: FrameId,
+    camera: &Camera,
+    view: Option<ViewId>,
+    chunk: usize,
+) -> Result<RenderedImage> {
+    let bounds = exp
+        .prepared
+        .frame(frame)
+        .with_context(|| format!("{frame} was not prepared"))?
+        .bounds;
+    let images = match view {
+        Some(v) => Some((exp.prepared.image(frame, v)?, exp.prepared.mask(frame, v)?)),
+        None => None,
+    };
+    let rays = image_rays(
+        camera,
+        &bounds,
+        images.as_ref().map(|(i, m)| (i, m)),
+        &SamplerOptions::default(),
+    )
+    .with_context(|| format!("rays of {frame}"))?;
+    let size = ImageSize::new(rays.width, rays.height);
+    let inputs = exp.frame_inputs(frame)?;
+    let mut prediction = RgbImageF32::black(size);
+    let mut hit = vec![false; size.pixels()];
+    for start in (0..rays.rays.len()).step_by(chunk.max(1)) {
+        let part = rays.rays.slice(start..(start + chunk).min(rays.rays.len()));
+        let batch = RayBatch::new(
+            &part,
+            frame,
+            view.unwrap_or(ViewId(usize::MAX)),
+            &exp.device,
+        );
+        let rgb = to_host(
+            model
+                .render(&batch, &inputs, exp.canonical(), None, false)
+                .rgb,
+        );
+        for (i, [u, v]) in part.pixels.iter().enumerate() {
+            prediction.set_pixel(*u, *v, [rgb[3 * i], rgb[3 * i + 1], rgb[3 * i + 2]]);
+            hit[(*v * size.width + *u) as usize] = true;
+        }
+    }
+    let ground_truth = rays.ground_truth.map(|gt| {
+        let data: Vec<f32> = gt.pixels().flat_map(|p| p.0).collect();
+        RgbImageF32::new(size, data).expect("the sampler's image has the camera's size")
+    });
+    Ok(RenderedImage {
+        prediction,
+        ground_truth,
+        mask: PixelMask::new(size, hit).expect("sized from the image"),
+    })
+}
+
+/// The world's "up" direction as the cameras see it: the mean of their image-up axes (`−y` of each camera
+/// in world space), normalised.
+pub fn mean_up(cameras: &[Camera]) -> glam::Vec3 {
+    let sum: glam::Vec3 = cameras
+        .iter()
+        .map(|c| c.rotation.transpose() * -glam::Vec3::Y)
+        .sum();
+    sum.try_normalize().unwrap_or(glam::Vec3::Z)
+}
+
+/// `n` cameras orbiting `center` about the axis `up`, starting at `reference` and keeping its intrinsics,
+/// distance and height: the reference camera moved with the world rotated about the axis.
+pub fn orbit(reference: &Camera, center: glam::Vec3, up: glam::Vec3, n: usize) -> Vec<Camera> {
+    (0..n)
+        .map(|i| {
+            let q = glam::Mat3::from_axis_angle(up, std::f32::consts::TAU * i as f32 / n as f32);
+            let eye = center + q * (reference.center() - center);
+            let rotation = reference.rotation * q.transpose();
+            Camera {
+                rotation,
+                translation: -(rotation * eye),
+                ..reference.clone()
+            }
+        })
+        .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use anerf_core::geometry::PixelConvention;
+    use glam::Vec3;
+
+    #[test]
+    fn orbit_keeps_the_subject_at_the_same_pixel_and_distance() {
+        let reference = Camera::from_rows(
+            [[100.0, 0.0, 32.0], [0.0, 100.0, 32.0], [0.0, 0.0, 1.0]],
+            [[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]],
+            [0.1, 0.9, 3.0],
+            [0.0; 5],
+            64,
+            64,
+        )
+        .unwrap();
+        let center = Vec3::new(0.2, -0.1, 0.9);
+        let up = mean_up(std::slice::from_ref(&reference));
+        assert!((up - Vec3::Z).length() < 1e-6, "{up}");
+        let px = reference.project(center, PixelConvention::Integer).unwrap();
+        let cams = orbit(&reference, center, up, 8);
+        for c in &cams {
+            c.validate().unwrap();
+            assert!((c.project(center, PixelConvention::Integer).unwrap() - px).length() < 1e-3);
+            assert!(
+                ((c.center() - center).length() - (reference.center() - center).length()).abs()
+                    < 1e-5
+            );
+            assert!(
+                ((c.center() - center).dot(up) - (reference.center() - center).dot(up)).abs()
+                    < 1e-5
+            );
+        }
+        // Half way round, the camera sits on the other side of the subject.
+        let (a, b) = (reference.center() - center, cams[4].center() - center);
+        assert!((a - a.dot(up) * up + (b - b.dot(up) * up)).length() < 1e-4);
+    }
+}

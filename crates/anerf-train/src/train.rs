@@ -1,0 +1,480 @@
+//! The two optimisation stages: stage 1 fits the canonical radiance field and the blend-weight fields to the
+//! training video; stage 2 fits blend-weight fields for the novel poses against the frozen canonical field.
+
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::time::Instant;
+
+use anerf_core::model::{AnimatableNerf, ModelConfig};
+use anerf_core::render::{color_mse, psnr_from_mse, RayBatch};
+use anerf_core::tensor::{from_rows, to_host};
+use anerf_data::{RaySampler, SamplerOptions};
+use anerf_eval::images::{write_png, PngDepth};
+use anerf_eval::ImageMetrics;
+use anyhow::{bail, Context, Result};
+use burn::grad_clipping::GradientClippingConfig;
+use burn::optim::{AdamConfig, GradientsParams, ModuleOptimizer};
+use burn::prelude::*;
+use glam::Vec3;
+use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+use serde::Serialize;
+
+use crate::checkpoint::{Checkpoint, TrainerState};
+use crate::config::StageConfig;
+use crate::experiment::Experiment;
+use crate::render::render_view;
+use crate::run_dir::{MetricsLog, RunDir};
+use crate::schedule::learning_rate;
+
+/// How a stage runs.
+#[derive(Debug, Clone, Copy)]
+pub struct TrainOptions {
+    /// Continue from the stage's latest checkpoint.
+    pub resume: bool,
+    /// Draw a progress bar on stderr.
+    pub progress: bool,
+}
+
+/// How a stage ended.
+#[derive(Debug, Clone, PartialEq)]
+pub struct StageOutcome {
+    /// Steps completed in total (including those before a resume).
+    pub steps: usize,
+    /// Mean loss over the last logged interval.
+    pub loss: f32,
+    /// True when stopped by Ctrl-C (a checkpoint was written).
+    pub interrupted: bool,
+    pub seconds: f64,
+}
+
+/// One line of `metrics.jsonl`.
+#[derive(Debug, Serialize)]
+struct LogLine {
+    stage: u8,
+    step: usize,
+    loss: f32,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    color_mse: Option<f32>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    psnr: Option<f32>,
+    blend: f32,
+    lr: f64,
+    items_per_second: f64,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    surviving_fraction: Option<f32>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    validation_psnr: Option<f64>,
+}
+
+fn optimizer(stage: &StageConfig) -> ModuleOptimizer {
+    let clip = (stage.grad_clip > 0.0).then_some(GradientClippingConfig::Value(stage.grad_clip));
+    AdamConfig::new()
+        .with_epsilon(1e-8)
+        .with_grad_clipping(clip)
+        .init()
+}
+
+fn progress_bar(total: usize, start: usize, visible: bool, stage: u8) -> ProgressBar {
+    let bar = ProgressBar::with_draw_target(
+        Some(total as u64),
+        if visible {
+            ProgressDrawTarget::stderr()
+        } else {
+            ProgressDrawTarget::hidden()
+        },
+    );
+    bar.set_style(
+        ProgressStyle::with_template(&format!(
+            "stage {stage} {{bar:30}} {{pos}}/{{len}} {{msg}} ETA {{eta}}"
+        ))
+        .expect("valid template"),
+    );
+    bar.set_position(start as u64);
+    bar
+}
+
+/// Running means of the logged quantities between two log lines.
+#[derive(Default)]
+struct Window {
+    steps: usize,
+    loss: f64,
+    mse: f64,
+    blend: f64,
+    surviving: f64,
+    items: usize,
+    started: Option<Instant>,
+}
+
+impl Window {
+    fn add(&mut self, loss: f32, mse: f32, blend: f32, surviving: f32, items: usize) {
+        self.started.get_or_insert_with(Instant::now);
+        self.steps += 1;
+        self.loss += loss as f64;
+        self.mse += mse as f64;
+        self.blend += blend as f64;
+        self.surviving += surviving as f64;
+        self.items += items;
+    }
+
+    fn mean(&self, v: f64) -> f32 {
+        (v / self.steps.max(1) as f64) as f32
+    }
+
+    fn rate(&self) -> f64 {
+        self.started.map_or(0.0, |t| {
+            self.items as f64 / t.elapsed().as_secs_f64().max(1e-9)
+        })
+    }
+}
+
+/// Uniform numbers in `[0, 1)` as an `[rows, cols]` tensor, from the trainer's own stream.
+fn uniform(rng: &mut ChaCha8Rng, rows: usize, cols: usize, device: &Device) -> Tensor<2> {
+    let values: Vec<f32> = (0..rows * cols).map(|_| rng.random::<f32>()).collect();
+    from_rows(&values, rows, cols, device)
+}
+
+/// `n` points uniform in the box `[min, max]`.
+fn uniform_in_box(rng: &mut ChaCha8Rng, min: Vec3, max: Vec3, n: usize) -> Vec<Vec3> {
+    (0..n)
+        .map(|_| min + (max - min) * Vec3::new(rng.random(), rng.random(), rng.random()))
+        .collect()
+}
+
+fn check_finite(loss: f32, stage: u8, step: usize, run: &RunDir) -> Result<()> {
+    if !loss.is_finite() {
+        bail!(
+            "stage {stage} stopped at step {step}: the loss is {loss}; the last good checkpoint in {} is kept \
+             (lower the learning rate or check the data, then `--resume`)",
+            run.checkpoints().display()
+        );
+    }
+    Ok(())
+}
+
+/// Stage 1: trains (or resumes) on the training frames and views, writing checkpoints, logs and validation
+/// renders into `run`.
+pub fn train_stage1(
+    exp: &mut Experiment,
+    run: &RunDir,
+    options: TrainOptions,
+    stop: &AtomicBool,
+) -> Result<StageOutcome> {
+    let cfg = exp.config.train.clone();
+    let model_cfg = exp.config.model.clone();
+    let device = exp.device.clone();
+    let (mut model, mut optim, mut state) =
+        match (options.resume, Checkpoint::latest(&run.checkpoints(), 1)?) {
+            (true, Some(ck)) => {
+                let (model, state) = ck.load_model(&model_cfg, &device)?;
+                check_sizes(&state, exp)?;
+                (model, ck.load_optimizer(optimizer(&cfg))?, state)
+            }
+            _ => {
+                device.seed(exp.config.seed);
+                let sampler = RaySampler::new(
+                    exp.config.seed,
+                    SamplerOptions {
+                        rays: cfg.batch,
+                        ..SamplerOptions::default()
+                    },
+                );
+                let state = TrainerState {
+                    stage: 1,
+                    step: 0,
+                    model: model_cfg.clone(),
+                    training_frames: exp.train_frames.len(),
+                    joints: exp.prepared.skeleton.num_joints(),
+                    novel_frames: None,
+                    sampler: Some(sampler),
+                    rng: ChaCha8Rng::seed_from_u64(exp.config.seed ^ 0x5eed_0001),
+                };
+                (
+                    AnimatableNerf::new(&model_cfg, exp.model_sizes(), &device),
+                    optimizer(&cfg),
+                    state,
+                )
+            }
+        };
+    let log = MetricsLog::open(run.metrics_log(), 1, options.resume.then_some(state.step))?;
+    let bar = progress_bar(cfg.iterations, state.step, options.progress, 1);
+    let started = Instant::now();
+    let mut window = Window::default();
+    let mut last_loss = f32::NAN;
+    let samples = model_cfg.samples_per_ray;
+    let mut interrupted = false;
+    while state.step < cfg.iterations {
+        if stop.load(Ordering::SeqCst) {
+            interrupted = true;
+            break;
+        }
+        let sampler = state.sampler.as_mut().expect("stage 1 keeps a sampler");
+        let (frame, view) = sampler
+            .pick(&exp.train_frames, &exp.train_views)
+            .expect("frames and views exist");
+        let host = sampler
+            .sample_prepared(&exp.prepared, frame, view)
+            .with_context(|| format!("sampling rays of {frame}, {view}"))?;
+        let rays = RayBatch::new(&host, frame, view, &device);
+        let jitter = uniform(&mut state.rng, rays.len(), samples, &device);
+        let inputs = exp.frame_inputs(frame)?;
+        let out = model.render(
+            &rays,
+            &inputs,
+            exp.canonical(),
+            Some(jitter),
+            model_cfg.neural_blend_weights,
+        );
+        let mse = color_mse(
+            out.rgb,
+            rays.colors.clone().expect("training rays carry colours"),
+        );
+        let blend = out.consistency.map(|c| c.loss(model_cfg.consistency));
+        let loss = match &blend {
+            Some(b) => mse.clone() + b.clone(),
+            None => mse.clone(),
+        };
+        let values = to_host(Tensor::cat(
+            vec![
+                loss.clone(),
+                mse,
+                blend.unwrap_or_else(|| Tensor::zeros([1], &device)),
+            ],
+            0,
+        ));
+        check_finite(values[0], 1, state.step, run)?;
+        let lr = learning_rate(&cfg, state.step);
+        let grads = GradientsParams::from_grads(loss.backward(), &model);
+        model = optim.step(lr, model, grads);
+        state.step += 1;
+        last_loss = values[0];
+        window.add(
+            values[0],
+            values[1],
+            values[2],
+            out.surviving_samples as f32 / out.total_samples as f32,
+            rays.len(),
+        );
+
+        let validation_psnr = if cfg.validate_every > 0 && state.step % cfg.validate_every == 0 {
+            Some(validate(&model, exp, run, state.step)?)
+        } else {
+            None
+        };
+        if state.step % cfg.log_every == 0
+            || state.step == cfg.iterations
+            || validation_psnr.is_some()
+        {
+            let mse = window.mean(window.mse);
+            let line = LogLine {
+                stage: 1,
+                step: state.step,
+                loss: window.mean(window.loss),
+                color_mse: Some(mse),
+                psnr: Some(psnr_from_mse(mse)),
+                blend: window.mean(window.blend),
+                lr,
+                items_per_second: window.rate(),
+                surviving_fraction: Some(window.mean(window.surviving)),
+                validation_psnr,
+            };
+            bar.set_message(format!(
+                "loss {:.4} psnr {:.2} {:.0} rays/s",
+                line.loss,
+                psnr_from_mse(mse),
+                line.items_per_second
+            ));
+            log.append(&line)?;
+            window = Window::default();
+        }
+        bar.set_position(state.step as u64);
+        if cfg.checkpoint_every > 0 && state.step % cfg.checkpoint_every == 0 {
+            Checkpoint::save(&run.checkpoints(), &state, &model, &optim)?;
+        }
+    }
+    Checkpoint::save(&run.checkpoints(), &state, &model, &optim)?;
+    bar.finish_and_clear();
+    Ok(StageOutcome {
+        steps: state.step,
+        loss: last_loss,
+        interrupted,
+        seconds: started.elapsed().as_secs_f64(),
+    })
+}
+
+fn check_sizes(state: &TrainerState, exp: &Experiment) -> Result<()> {
+    let sizes = exp.model_sizes();
+    if state.training_frames != sizes.training_frames || state.joints != sizes.joints {
+        bail!(
+            "the checkpoint was trained on {} frames and {} joints, the config selects {} frames and {} joints",
+            state.training_frames,
+            state.joints,
+            sizes.training_frames,
+            sizes.joints
+        );
+    }
+    Ok(())
+}
+
+/// Renders a held-out view of a middle training frame, saves it and returns its protocol PSNR.
+fn validate(
+    model: &AnimatableNerf,
+    exp: &mut Experiment,
+    run: &RunDir,
+    step: usize,
+) -> Result<f64> {
+    let frame = exp.train_frames[exp.train_frames.len() / 2];
+    let view = *exp.test_views.first().unwrap_or(&exp.train_views[0]);
+    let camera = exp.prepared.cameras[view.0].clone();
+    let chunk = exp.config.eval.chunk;
+    // The training model renders directly; no backward pass follows, so its graph is simply dropped.
+    let image = render_view(model, exp, frame, &camera, Some(view), chunk)?;
+    let gt = image
+        .ground_truth
+        .as_ref()
+        .expect("a dataset view has ground truth");
+    let metrics = ImageMetrics::compute(&image.prediction, gt, Some(&image.mask))
+        .context("validation metrics")?;
+    write_png(
+        &run.renders().join(format!("validation_{step:08}.png")),
+        &image.prediction,
+        PngDepth::Eight,
+    )?;
+    Ok(metrics.psnr)
+}
+
+/// Stage 2: fits novel-pose blend-weight fields (starting from the latest stage-1 checkpoint, or resuming
+/// stage 2) with every stage-1 parameter frozen.
+pub fn train_stage2(
+    exp: &mut Experiment,
+    run: &RunDir,
+    options: TrainOptions,
+    stop: &AtomicBool,
+) -> Result<StageOutcome> {
+    let cfg = exp.config.animate.clone();
+    let model_cfg: ModelConfig = exp.config.model.clone();
+    let device = exp.device.clone();
+    if exp.novel_frames.is_empty() {
+        bail!("the config selects no novel-pose frames (dataset.*.novel_pose_frames); nothing to animate");
+    }
+    let resumed = if options.resume {
+        Checkpoint::latest(&run.checkpoints(), 2)?
+    } else {
+        None
+    };
+    let (mut model, mut optim, mut state) = match resumed {
+        Some(ck) => {
+            let (model, state) = ck.load_model(&model_cfg, &device)?;
+            (
+                model.freeze_stage1(),
+                ck.load_optimizer(optimizer(&cfg))?,
+                state,
+            )
+        }
+        None => {
+            let ck = Checkpoint::latest(&run.checkpoints(), 1)?.with_context(|| {
+                format!(
+                    "{} has no stage-1 checkpoint; run `anerf train` first",
+                    run.root.display()
+                )
+            })?;
+            let (model, stage1) = ck.load_model(&model_cfg, &device)?;
+            check_sizes(&stage1, exp)?;
+            device.seed(exp.config.seed ^ 2);
+            let state = TrainerState {
+                stage: 2,
+                step: 0,
+                novel_frames: Some(exp.novel_frames.len()),
+                sampler: None,
+                rng: ChaCha8Rng::seed_from_u64(exp.config.seed ^ 0x5eed_0002),
+                ..stage1
+            };
+            (
+                model.with_novel_field(exp.novel_frames.len(), &device),
+                optimizer(&cfg),
+                state,
+            )
+        }
+    };
+    let log = MetricsLog::open(run.metrics_log(), 2, options.resume.then_some(state.step))?;
+    let bar = progress_bar(cfg.iterations, state.step, options.progress, 2);
+    let started = Instant::now();
+    let mut window = Window::default();
+    let mut last_loss = f32::NAN;
+    let mut interrupted = false;
+    let canonical_box = exp.canonical().bounds;
+    while state.step < cfg.iterations {
+        if stop.load(Ordering::SeqCst) {
+            interrupted = true;
+            break;
+        }
+        let j = state.rng.random_range(0..exp.novel_frames.len());
+        let frame = exp.novel_frames[j];
+        let inputs = exp.frame_inputs(frame)?;
+        let world_box = exp
+            .prepared
+            .frame(frame)
+            .with_context(|| format!("{frame} was not prepared"))?
+            .bounds;
+        let world = uniform_in_box(&mut state.rng, world_box.min, world_box.max, cfg.batch);
+        let pose: Vec<Vec3> = world
+            .iter()
+            .map(|&p| inputs.global.world_to_pose(p))
+            .collect();
+        let canonical_points = uniform_in_box(
+            &mut state.rng,
+            canonical_box.min,
+            canonical_box.max,
+            cfg.batch,
+        );
+        let loss = model.stage2_loss(
+            &inputs,
+            exp.canonical(),
+            anerf_core::geometry::skinning::points_tensor(&pose, &device),
+            anerf_core::geometry::skinning::points_tensor(&canonical_points, &device),
+        );
+        let values = to_host(Tensor::cat(
+            vec![loss.total.clone(), loss.observation, loss.canonical],
+            0,
+        ));
+        check_finite(values[0], 2, state.step, run)?;
+        let lr = learning_rate(&cfg, state.step);
+        let grads = GradientsParams::from_grads(loss.total.backward(), &model);
+        model = optim.step(lr, model, grads);
+        state.step += 1;
+        last_loss = values[0];
+        window.add(values[0], 0.0, values[0], 1.0, 2 * cfg.batch);
+        if state.step % cfg.log_every == 0 || state.step == cfg.iterations {
+            let line = LogLine {
+                stage: 2,
+                step: state.step,
+                loss: window.mean(window.loss),
+                color_mse: None,
+                psnr: None,
+                blend: window.mean(window.blend),
+                lr,
+                items_per_second: window.rate(),
+                surviving_fraction: None,
+                validation_psnr: None,
+            };
+            bar.set_message(format!(
+                "loss {:.5} {:.0} points/s",
+                line.loss, line.items_per_second
+            ));
+            log.append(&line)?;
+            window = Window::default();
+        }
+        bar.set_position(state.step as u64);
+        if cfg.checkpoint_every > 0 && state.step % cfg.checkpoint_every == 0 {
+            Checkpoint::save(&run.checkpoints(), &state, &model, &optim)?;
+        }
+    }
+    Checkpoint::save(&run.checkpoints(), &state, &model, &optim)?;
+    bar.finish_and_clear();
+    Ok(StageOutcome {
+        steps: state.step,
+        loss: last_loss,
+        interrupted,
+        seconds: started.elapsed().as_secs_f64(),
+    })
+}
