@@ -1,6 +1,7 @@
 //! Training for anerf: experiment configs, the stage-1 and stage-2 loops, checkpoints, rendering and
 //! evaluation of runs, and the library behind the `anerf` command-line tool.
 
+pub mod bench;
 pub mod checkpoint;
 pub mod cli;
 pub mod commands;

@@ -19,6 +19,11 @@ pub struct RenderedImage {
     pub ground_truth: Option<RgbImageF32>,
     /// Pixels whose ray hits the padded body box (`mask_at_box`).
     pub mask: PixelMask,
+    /// Rays rendered (pixels inside `mask`).
+    pub rays: usize,
+    /// Samples that reached the MLPs, and all samples along the rendered rays.
+    pub surviving_samples: usize,
+    pub total_samples: usize,
 }
 
 /// Renders frame `frame` as seen by camera `camera` (a dataset view when `view` is given, whose image then
@@ -51,6 +56,7 @@ pub fn render_view(
     let inputs = exp.frame_inputs(frame)?;
     let mut prediction = RgbImageF32::black(size);
     let mut hit = vec![false; size.pixels()];
+    let (mut surviving_samples, mut total_samples) = (0, 0);
     for start in (0..rays.rays.len()).step_by(chunk.max(1)) {
         let part = rays.rays.slice(start..(start + chunk).min(rays.rays.len()));
         let batch = RayBatch::new(
@@ -59,11 +65,10 @@ pub fn render_view(
             view.unwrap_or(ViewId(usize::MAX)),
             &exp.device,
         );
-        let rgb = to_host(
-            model
-                .render(&batch, &inputs, exp.canonical(), None, false)
-                .rgb,
-        );
+        let out = model.render(&batch, &inputs, exp.canonical(), None, false);
+        surviving_samples += out.surviving_samples;
+        total_samples += out.total_samples;
+        let rgb = to_host(out.rgb);
         for (i, [u, v]) in part.pixels.iter().enumerate() {
             prediction.set_pixel(*u, *v, [rgb[3 * i], rgb[3 * i + 1], rgb[3 * i + 2]]);
             hit[(*v * size.width + *u) as usize] = true;
@@ -77,6 +82,9 @@ pub fn render_view(
         prediction,
         ground_truth,
         mask: PixelMask::new(size, hit).expect("sized from the image"),
+        rays: rays.rays.len(),
+        surviving_samples,
+        total_samples,
     })
 }
 
