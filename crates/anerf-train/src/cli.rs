@@ -88,6 +88,9 @@ pub struct TrainArgs {
     /// Continue from the run's latest checkpoint.
     #[arg(long)]
     pub resume: bool,
+    /// Stop (with a checkpoint) after this many steps; `--resume` continues.
+    #[arg(long)]
+    pub steps: Option<usize>,
     #[command(flatten)]
     pub common: Common,
 }
@@ -99,6 +102,9 @@ pub struct RunArgs {
     /// Continue stage 2 from its latest checkpoint.
     #[arg(long)]
     pub resume: bool,
+    /// Stop (with a checkpoint) after this many steps; `--resume` continues.
+    #[arg(long)]
+    pub steps: Option<usize>,
     #[command(flatten)]
     pub common: Common,
 }

@@ -170,6 +170,7 @@ pub fn train(
     run: &Path,
     common: &Common,
     resume: bool,
+    max_steps: Option<usize>,
     stop: &AtomicBool,
 ) -> Result<StageOutcome> {
     let device = device(&config, common)?.autodiff();
@@ -191,6 +192,7 @@ pub fn train(
         TrainOptions {
             resume,
             progress: !common.quiet,
+            max_steps,
         },
         stop,
     )?;
@@ -203,6 +205,7 @@ pub fn animate(
     run: &Path,
     common: &Common,
     resume: bool,
+    max_steps: Option<usize>,
     stop: &AtomicBool,
 ) -> Result<StageOutcome> {
     let run = RunDir::open(run)?;
@@ -216,6 +219,7 @@ pub fn animate(
         TrainOptions {
             resume,
             progress: !common.quiet,
+            max_steps,
         },
         stop,
     )?;
@@ -507,13 +511,13 @@ pub fn demo(out: &Path, preset: ModelPreset, common: &Common, stop: &AtomicBool)
 
     let resume = Checkpoint::latest(&run.join("checkpoints"), 1)?.is_some();
     let t = std::time::Instant::now();
-    if train(config, &run, common, resume, stop)?.interrupted {
+    if train(config, &run, common, resume, None, stop)?.interrupted {
         return Ok(());
     }
     times.push(("stage 1 (train)", t.elapsed()));
     let resume = Checkpoint::latest(&run.join("checkpoints"), 2)?.is_some();
     let t = std::time::Instant::now();
-    if animate(&run, common, resume, stop)?.interrupted {
+    if animate(&run, common, resume, None, stop)?.interrupted {
         return Ok(());
     }
     times.push(("stage 2 (animate)", t.elapsed()));

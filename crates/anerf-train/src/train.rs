@@ -34,6 +34,8 @@ pub struct TrainOptions {
     pub resume: bool,
     /// Draw a progress bar on stderr.
     pub progress: bool,
+    /// Stop (with a checkpoint) after this many steps of this invocation, e.g. to split a run into sessions.
+    pub max_steps: Option<usize>,
 }
 
 /// How a stage ended.
@@ -43,7 +45,7 @@ pub struct StageOutcome {
     pub steps: usize,
     /// Mean loss over the last logged interval.
     pub loss: f32,
-    /// True when stopped by Ctrl-C (a checkpoint was written).
+    /// True when stopped before the last iteration (Ctrl-C or `max_steps`; a checkpoint was written).
     pub interrupted: bool,
     pub seconds: f64,
 }
@@ -203,8 +205,13 @@ pub fn train_stage1(
     let mut last_loss = f32::NAN;
     let samples = model_cfg.samples_per_ray;
     let mut interrupted = false;
+    let first_step = state.step;
     while state.step < cfg.iterations {
-        if stop.load(Ordering::SeqCst) {
+        if stop.load(Ordering::SeqCst)
+            || options
+                .max_steps
+                .is_some_and(|m| state.step - first_step >= m)
+        {
             interrupted = true;
             break;
         }
@@ -403,8 +410,13 @@ pub fn train_stage2(
     let mut last_loss = f32::NAN;
     let mut interrupted = false;
     let canonical_box = exp.canonical().bounds;
+    let first_step = state.step;
     while state.step < cfg.iterations {
-        if stop.load(Ordering::SeqCst) {
+        if stop.load(Ordering::SeqCst)
+            || options
+                .max_steps
+                .is_some_and(|m| state.step - first_step >= m)
+        {
             interrupted = true;
             break;
         }
