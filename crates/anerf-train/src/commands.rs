@@ -560,3 +560,77 @@ pub fn demo(out: &Path, preset: ModelPreset, common: &Common, stop: &AtomicBool)
     println!("turntable of a novel pose: {}", gif.display());
     Ok(())
 }
+
+/// `anerf mesh`: the canonical mesh (PLY with colours and `w^can` per vertex, and OBJ) and its reposed
+/// copies under `<run>/meshes/`.
+pub fn mesh(run_path: &Path, job: &crate::mesh::MeshJob, common: &Common) -> Result<PathBuf> {
+    use anerf_eval::mesh_io::{write_obj, write_ply, MeshView, VertexAttribute};
+    let run = RunDir::open(run_path)?;
+    let mut config = run.read_config()?;
+    apply_overrides(&mut config, common)?;
+    if !(job.voxel.is_finite() && job.voxel > 0.0) {
+        bail!("--voxel {}: expected a positive size in metres", job.voxel);
+    }
+    let device = device(&config, common)?;
+    let model = load_trained(&run, &config, &device)?;
+    let exp = Experiment::open(config, device.clone(), !common.quiet)?;
+    let appearance = exp.train_frames.len() / 2;
+    let volume = exp.prepared.canonical_volume()?;
+    let chunk = exp.config.eval.chunk;
+    let mut cm = crate::mesh::canonical_mesh(
+        &model,
+        exp.canonical(),
+        &volume,
+        job,
+        appearance,
+        chunk,
+        &device,
+    )?;
+    if job.smooth > 0 {
+        let smoothing = anerf_eval::mesh_smooth::Smoothing::taubin(job.smooth);
+        cm.mesh.vertices =
+            anerf_eval::mesh_smooth::smooth_vertices(&cm.mesh.vertices, &cm.mesh.faces, smoothing)?;
+    }
+    let k = cm.num_joints;
+    let columns: Vec<Vec<f32>> = (0..k)
+        .map(|j| cm.weights.iter().skip(j).step_by(k).copied().collect())
+        .collect();
+    let names: Vec<String> = (0..k).map(|j| format!("w{j:02}")).collect();
+    let attributes: Vec<VertexAttribute> = names
+        .iter()
+        .zip(&columns)
+        .map(|(name, values)| VertexAttribute { name, values })
+        .collect();
+    let dir = run.meshes();
+    let canonical = MeshView::new(&cm.mesh.vertices, &cm.mesh.faces)
+        .with_colors(&cm.colors)
+        .with_attributes(&attributes);
+    write_ply(&dir.join("canonical.ply"), &canonical)?;
+    write_obj(&dir.join("canonical.obj"), &canonical)?;
+    println!(
+        "canonical mesh: {} vertices, {} faces → {}",
+        cm.mesh.vertices.len(),
+        cm.mesh.faces.len(),
+        dir.join("canonical.ply").display()
+    );
+    for &f in &job.frames {
+        let frame = exp
+            .prepared
+            .frame(FrameId(f))
+            .with_context(|| format!("frame {f} was not prepared (--frames)"))?;
+        let posed = crate::mesh::repose(
+            &cm.mesh.vertices,
+            &cm.weights,
+            &frame.bones,
+            &frame.pose.global,
+        )?;
+        let view = MeshView::new(&posed, &cm.mesh.faces).with_colors(&cm.colors);
+        write_ply(&dir.join(format!("frame_{f:06}.ply")), &view)?;
+        write_obj(&dir.join(format!("frame_{f:06}.obj")), &view)?;
+        println!(
+            "reposed to frame {f} → {}",
+            dir.join(format!("frame_{f:06}.ply")).display()
+        );
+    }
+    Ok(dir.join("canonical.ply"))
+}

@@ -74,6 +74,15 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
             };
             commands::render(&a.run, job, &a.common)?;
         }
+        Command::Mesh(a) => {
+            let job = anerf_train::mesh::MeshJob {
+                voxel: a.voxel,
+                level: a.level,
+                smooth: a.smooth,
+                frames: a.frames,
+            };
+            commands::mesh(&a.run, &job, &a.common)?;
+        }
         Command::Demo(a) => commands::demo(&a.out, a.preset, &a.common, &interrupt_flag())?,
     }
     Ok(ExitCode::SUCCESS)

@@ -403,6 +403,20 @@ pub fn train_stage2(
             )
         }
     };
+    if !model_cfg.neural_blend_weights {
+        // Without the residual the novel-pose weights are the body model's: nothing to fit.
+        state.step = cfg.iterations;
+        Checkpoint::save(&run.checkpoints(), &state, &model, &optim)?;
+        eprintln!(
+            "stage 2: model.neural_blend_weights = false, novel poses use the body model's weights"
+        );
+        return Ok(StageOutcome {
+            steps: state.step,
+            loss: 0.0,
+            interrupted: false,
+            seconds: 0.0,
+        });
+    }
     let log = MetricsLog::open(run.metrics_log(), 2, options.resume.then_some(state.step))?;
     let bar = progress_bar(cfg.iterations, state.step, options.progress, 2);
     let started = Instant::now();

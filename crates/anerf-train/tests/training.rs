@@ -1,13 +1,14 @@
 //! End-to-end training on the tiny synthetic subject: learning, exact resume, interrupts, full disks and bad
 //! configurations.
 
+mod common;
+
 use std::path::{Path, PathBuf};
 use std::process::Command;
 use std::sync::atomic::AtomicBool;
 use std::time::{Duration, Instant};
 
 use anerf_core::device::cpu_device;
-use anerf_data::synthetic::{write_subject, SyntheticSpec};
 use anerf_eval::ImageMetrics;
 use anerf_train::checkpoint::Checkpoint;
 use anerf_train::cli::Common;
@@ -15,6 +16,7 @@ use anerf_train::commands;
 use anerf_train::config::{self, ExperimentConfig};
 use anerf_train::experiment::Experiment;
 use anerf_train::render::render_view;
+use common::tiny;
 
 fn quiet() -> Common {
     Common {
@@ -22,51 +24,6 @@ fn quiet() -> Common {
         overrides: Vec::new(),
         quiet: true,
     }
-}
-
-/// Writes the tiny subject into `dir/subject` and returns a config training on it.
-fn tiny(dir: &Path, overrides: &[&str]) -> ExperimentConfig {
-    let subject = dir.join("subject");
-    if !subject.exists() {
-        write_subject(&SyntheticSpec::tiny(), &subject).unwrap();
-    }
-    let mut table = config::defaults();
-    let text = format!(
-        r#"
-name = "tiny"
-[dataset]
-format = "zju_mocap"
-root = "{}"
-cache = "{}"
-ratio = 1.0
-train_views = [0, 2]
-iccv = {{ train_frames = "0:6", novel_pose_frames = "6:10" }}
-[model]
-preset = "tiny"
-[train]
-iterations = 60
-batch = 256
-lr = 2e-3
-lr_final = 1e-3
-checkpoint_every = 20
-validate_every = 0
-log_every = 1
-[animate]
-iterations = 4
-batch = 1024
-log_every = 1
-[eval]
-frame_interval = 1
-chunk = 4096
-"#,
-        subject.display(),
-        dir.join("cache").display()
-    );
-    config::merge(&mut table, toml::from_str(&text).unwrap());
-    for o in overrides {
-        config::apply_override(&mut table, o).unwrap();
-    }
-    config::from_table(table).unwrap()
 }
 
 fn losses(run: &Path) -> Vec<f32> {
