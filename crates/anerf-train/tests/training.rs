@@ -276,3 +276,39 @@ fn bad_configurations_are_named() {
     );
     assert!(e.contains("model"), "{e}");
 }
+
+#[test]
+fn a_diverging_run_stops_with_a_clear_message_and_keeps_the_last_good_checkpoint() {
+    let dir = tempfile::tempdir().unwrap();
+    // An absurd learning rate blows the weights up after the first step; the loss turns infinite or NaN.
+    let config = tiny(
+        dir.path(),
+        &[
+            "train.lr=1e30",
+            "train.lr_final=1e30",
+            "train.grad_clip=0",
+            "train.checkpoint_every=1",
+            "train.iterations=20",
+        ],
+    );
+    let run = dir.path().join("run");
+    let err = commands::train(
+        config.clone(),
+        &run,
+        &quiet(),
+        false,
+        None,
+        &AtomicBool::new(false),
+    )
+    .unwrap_err();
+    let message = format!("{err:#}");
+    assert!(
+        message.contains("the loss is") && message.contains("last good checkpoint"),
+        "{message}"
+    );
+    let ck = Checkpoint::latest(&run.join("checkpoints"), 1)
+        .unwrap()
+        .expect("a checkpoint before the divergence");
+    let (_, state) = ck.load_model(&config.model, &cpu_device()).unwrap();
+    assert!(state.step >= 1 && state.step < 20, "{}", state.step);
+}
