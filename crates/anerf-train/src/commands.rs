@@ -340,14 +340,25 @@ pub fn compare(pred: &Path, gt: &Path, mask: Option<&Path>) -> Result<()> {
     Ok(())
 }
 
-/// `anerf info`.
+/// `anerf info`: for a config, its dataset folder with its layout and body-model file; returns false when a
+/// problem is fatal.
 pub fn info(path: &Path) -> Result<bool> {
-    let root: PathBuf = if path.extension().is_some_and(|e| e == "toml") {
-        config::load(path, &[])?.dataset.root
+    let (root, options) = if path.extension().is_some_and(|e| e == "toml") {
+        let d = config::load(path, &[])?.dataset;
+        let load = anerf_data::LoadOptions {
+            body_model: d.body_model,
+        };
+        (
+            d.root,
+            anerf_data::InspectOptions {
+                kind: Some(d.format.kind()),
+                load,
+            },
+        )
     } else {
-        path.to_path_buf()
+        (path.to_path_buf(), Default::default())
     };
-    let report = anerf_data::inspect(&root, &Default::default());
+    let report = anerf_data::inspect(&root, &options);
     println!("{report}");
     Ok(!report.has_fatal())
 }

@@ -116,6 +116,16 @@ pub enum DatasetFormat {
     H36m,
 }
 
+impl DatasetFormat {
+    /// The loader's name for the layout.
+    pub fn kind(self) -> anerf_data::DatasetKind {
+        match self {
+            DatasetFormat::ZjuMocap => anerf_data::DatasetKind::ZjuMocap,
+            DatasetFormat::H36m => anerf_data::DatasetKind::H36m,
+        }
+    }
+}
+
 /// Which published frame ranges a subject config uses.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
 #[serde(rename_all = "snake_case")]
