@@ -2,6 +2,7 @@
 //! images and masks), their loaders into one [`Subject`] type, preprocessing caches, ray sampling, and the
 //! built-in synthetic subjects.
 
+pub mod atomic;
 pub mod error;
 pub mod formats;
 pub mod info;

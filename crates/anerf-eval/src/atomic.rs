@@ -1,35 +1,18 @@
 //! Atomic file writing: a temporary file in the destination's folder, renamed over it when complete, so a
 //! failed or interrupted write never leaves a half-written file behind.
 
-use std::io::{BufWriter, Write};
+use std::io::Write;
 use std::path::Path;
 
 use crate::error::EvalError;
 
 /// Creates `path`'s folder if needed, lets `write` fill a temporary file beside `path`, then renames it to
-/// `path`. When `write` fails, the temporary file is removed and an existing `path` is left untouched.
+/// `path` ([`anerf_data::atomic`]). When `write` fails, an existing `path` is left untouched.
 pub fn write_atomic(
     path: &Path,
     write: impl FnOnce(&mut dyn Write) -> Result<(), EvalError>,
 ) -> Result<(), EvalError> {
-    let mut builder = tempfile::Builder::new();
-    builder.prefix(".anerf-").suffix(".tmp");
-    #[cfg(unix)]
-    {
-        use std::os::unix::fs::PermissionsExt;
-        // Outputs are for people to look at: readable like any file, not tempfile's private 0600.
-        builder.permissions(std::fs::Permissions::from_mode(0o644));
-    }
-    let temp = builder
-        .tempfile_in(parent_dir(path)?)
-        .map_err(|e| io_error(path, e))?;
-    {
-        let mut writer = BufWriter::new(temp.as_file());
-        write(&mut writer)?;
-        writer.flush().map_err(|e| io_error(path, e))?;
-    }
-    temp.persist(path).map_err(|e| io_error(path, e.error))?;
-    Ok(())
+    anerf_data::atomic::write_with(path, write, |e| io_error(path, e))
 }
 
 /// A temporary folder beside `path` (removed when dropped) for multi-file work whose result is then

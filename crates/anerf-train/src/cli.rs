@@ -10,7 +10,7 @@ use clap::{Args, Parser, Subcommand};
 
 /// Animatable human avatars from multi-view video (Animatable NeRF, Peng et al., ICCV 2021).
 #[derive(Debug, Parser)]
-#[command(name = "anerf", version, about)]
+#[command(name = "anerf", version)]
 pub struct Cli {
     #[command(subcommand)]
     pub command: Command,
@@ -34,6 +34,8 @@ pub enum Command {
     Eval(EvalArgs),
     /// Render a free-viewpoint orbit or a novel-pose sequence of a run.
     Render(RenderArgs),
+    /// Extract the canonical mesh of a run (marching cubes on density) and repose it.
+    Mesh(MeshArgs),
     /// PSNR and SSIM of two images (with a mask: the paper's protocol).
     Compare(CompareArgs),
 }
@@ -88,6 +90,9 @@ pub struct TrainArgs {
     /// Continue from the run's latest checkpoint.
     #[arg(long)]
     pub resume: bool,
+    /// Stop (with a checkpoint) after this many steps; `--resume` continues.
+    #[arg(long)]
+    pub steps: Option<usize>,
     #[command(flatten)]
     pub common: Common,
 }
@@ -99,6 +104,9 @@ pub struct RunArgs {
     /// Continue stage 2 from its latest checkpoint.
     #[arg(long)]
     pub resume: bool,
+    /// Stop (with a checkpoint) after this many steps; `--resume` continues.
+    #[arg(long)]
+    pub steps: Option<usize>,
     #[command(flatten)]
     pub common: Common,
 }
@@ -128,6 +136,25 @@ pub struct RenderArgs {
     /// Output image size (width = height) of the orbit; default: the dataset's.
     #[arg(long)]
     pub size: Option<u32>,
+    #[command(flatten)]
+    pub common: Common,
+}
+
+#[derive(Debug, Args)]
+pub struct MeshArgs {
+    pub run: PathBuf,
+    /// Voxel size in metres.
+    #[arg(long, default_value_t = 0.005)]
+    pub voxel: f32,
+    /// Iso level on raw density (the reference uses 5).
+    #[arg(long, default_value_t = 5.0)]
+    pub level: f32,
+    /// Taubin smoothing iterations (0 = none).
+    #[arg(long, default_value_t = 0)]
+    pub smooth: usize,
+    /// Also repose the canonical mesh to these dataset frames, e.g. --frames 0,30,60.
+    #[arg(long, value_delimiter = ',')]
+    pub frames: Vec<usize>,
     #[command(flatten)]
     pub common: Common,
 }

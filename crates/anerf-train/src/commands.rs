@@ -170,6 +170,7 @@ pub fn train(
     run: &Path,
     common: &Common,
     resume: bool,
+    max_steps: Option<usize>,
     stop: &AtomicBool,
 ) -> Result<StageOutcome> {
     let device = device(&config, common)?.autodiff();
@@ -191,6 +192,7 @@ pub fn train(
         TrainOptions {
             resume,
             progress: !common.quiet,
+            max_steps,
         },
         stop,
     )?;
@@ -203,6 +205,7 @@ pub fn animate(
     run: &Path,
     common: &Common,
     resume: bool,
+    max_steps: Option<usize>,
     stop: &AtomicBool,
 ) -> Result<StageOutcome> {
     let run = RunDir::open(run)?;
@@ -216,6 +219,7 @@ pub fn animate(
         TrainOptions {
             resume,
             progress: !common.quiet,
+            max_steps,
         },
         stop,
     )?;
@@ -336,14 +340,25 @@ pub fn compare(pred: &Path, gt: &Path, mask: Option<&Path>) -> Result<()> {
     Ok(())
 }
 
-/// `anerf info`.
+/// `anerf info`: for a config, its dataset folder with its layout and body-model file; returns false when a
+/// problem is fatal.
 pub fn info(path: &Path) -> Result<bool> {
-    let root: PathBuf = if path.extension().is_some_and(|e| e == "toml") {
-        config::load(path, &[])?.dataset.root
+    let (root, options) = if path.extension().is_some_and(|e| e == "toml") {
+        let d = config::load(path, &[])?.dataset;
+        let load = anerf_data::LoadOptions {
+            body_model: d.body_model,
+        };
+        (
+            d.root,
+            anerf_data::InspectOptions {
+                kind: Some(d.format.kind()),
+                load,
+            },
+        )
     } else {
-        path.to_path_buf()
+        (path.to_path_buf(), Default::default())
     };
-    let report = anerf_data::inspect(&root, &Default::default());
+    let report = anerf_data::inspect(&root, &options);
     println!("{report}");
     Ok(!report.has_fatal())
 }
@@ -507,13 +522,13 @@ pub fn demo(out: &Path, preset: ModelPreset, common: &Common, stop: &AtomicBool)
 
     let resume = Checkpoint::latest(&run.join("checkpoints"), 1)?.is_some();
     let t = std::time::Instant::now();
-    if train(config, &run, common, resume, stop)?.interrupted {
+    if train(config, &run, common, resume, None, stop)?.interrupted {
         return Ok(());
     }
     times.push(("stage 1 (train)", t.elapsed()));
     let resume = Checkpoint::latest(&run.join("checkpoints"), 2)?.is_some();
     let t = std::time::Instant::now();
-    if animate(&run, common, resume, stop)?.interrupted {
+    if animate(&run, common, resume, None, stop)?.interrupted {
         return Ok(());
     }
     times.push(("stage 2 (animate)", t.elapsed()));
@@ -555,4 +570,78 @@ pub fn demo(out: &Path, preset: ModelPreset, common: &Common, stop: &AtomicBool)
     );
     println!("turntable of a novel pose: {}", gif.display());
     Ok(())
+}
+
+/// `anerf mesh`: the canonical mesh (PLY with colours and `w^can` per vertex, and OBJ) and its reposed
+/// copies under `<run>/meshes/`.
+pub fn mesh(run_path: &Path, job: &crate::mesh::MeshJob, common: &Common) -> Result<PathBuf> {
+    use anerf_eval::mesh_io::{write_obj, write_ply, MeshView, VertexAttribute};
+    let run = RunDir::open(run_path)?;
+    let mut config = run.read_config()?;
+    apply_overrides(&mut config, common)?;
+    if !(job.voxel.is_finite() && job.voxel > 0.0) {
+        bail!("--voxel {}: expected a positive size in metres", job.voxel);
+    }
+    let device = device(&config, common)?;
+    let model = load_trained(&run, &config, &device)?;
+    let exp = Experiment::open(config, device.clone(), !common.quiet)?;
+    let appearance = exp.train_frames.len() / 2;
+    let volume = exp.prepared.canonical_volume()?;
+    let chunk = exp.config.eval.chunk;
+    let mut cm = crate::mesh::canonical_mesh(
+        &model,
+        exp.canonical(),
+        &volume,
+        job,
+        appearance,
+        chunk,
+        &device,
+    )?;
+    if job.smooth > 0 {
+        let smoothing = anerf_eval::mesh_smooth::Smoothing::taubin(job.smooth);
+        cm.mesh.vertices =
+            anerf_eval::mesh_smooth::smooth_vertices(&cm.mesh.vertices, &cm.mesh.faces, smoothing)?;
+    }
+    let k = cm.num_joints;
+    let columns: Vec<Vec<f32>> = (0..k)
+        .map(|j| cm.weights.iter().skip(j).step_by(k).copied().collect())
+        .collect();
+    let names: Vec<String> = (0..k).map(|j| format!("w{j:02}")).collect();
+    let attributes: Vec<VertexAttribute> = names
+        .iter()
+        .zip(&columns)
+        .map(|(name, values)| VertexAttribute { name, values })
+        .collect();
+    let dir = run.meshes();
+    let canonical = MeshView::new(&cm.mesh.vertices, &cm.mesh.faces)
+        .with_colors(&cm.colors)
+        .with_attributes(&attributes);
+    write_ply(&dir.join("canonical.ply"), &canonical)?;
+    write_obj(&dir.join("canonical.obj"), &canonical)?;
+    println!(
+        "canonical mesh: {} vertices, {} faces → {}",
+        cm.mesh.vertices.len(),
+        cm.mesh.faces.len(),
+        dir.join("canonical.ply").display()
+    );
+    for &f in &job.frames {
+        let frame = exp
+            .prepared
+            .frame(FrameId(f))
+            .with_context(|| format!("frame {f} was not prepared (--frames)"))?;
+        let posed = crate::mesh::repose(
+            &cm.mesh.vertices,
+            &cm.weights,
+            &frame.bones,
+            &frame.pose.global,
+        )?;
+        let view = MeshView::new(&posed, &cm.mesh.faces).with_colors(&cm.colors);
+        write_ply(&dir.join(format!("frame_{f:06}.ply")), &view)?;
+        write_obj(&dir.join(format!("frame_{f:06}.obj")), &view)?;
+        println!(
+            "reposed to frame {f} → {}",
+            dir.join(format!("frame_{f:06}.ply")).display()
+        );
+    }
+    Ok(dir.join("canonical.ply"))
 }

@@ -116,6 +116,16 @@ pub enum DatasetFormat {
     H36m,
 }
 
+impl DatasetFormat {
+    /// The loader's name for the layout.
+    pub fn kind(self) -> anerf_data::DatasetKind {
+        match self {
+            DatasetFormat::ZjuMocap => anerf_data::DatasetKind::ZjuMocap,
+            DatasetFormat::H36m => anerf_data::DatasetKind::H36m,
+        }
+    }
+}
+
 /// Which published frame ranges a subject config uses.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
 #[serde(rename_all = "snake_case")]
@@ -395,7 +405,7 @@ pub fn apply_override(table: &mut Table, text: &str) -> Result<(), ConfigError> 
 }
 
 /// Replaces `[model] preset = "…"` by the preset's full configuration with the other `[model]` keys on top.
-/// Without `preset` the section must list every field (as a saved, resolved config does).
+/// With `preset = "none"` (or none at all) the section must list every field, as a saved, resolved config does.
 fn expand_model_preset(table: &mut Table) -> Result<(), ConfigError> {
     let mut model = match table.remove("model") {
         Some(Value::Table(t)) => t,
@@ -403,19 +413,22 @@ fn expand_model_preset(table: &mut Table) -> Result<(), ConfigError> {
         Some(_) => return Err(ConfigError::Invalid("`model` must be a section".into())),
     };
     let preset = match model.remove("preset") {
-        Some(Value::String(name)) => name
-            .parse::<ModelPreset>()
-            .map_err(|e| ConfigError::Invalid(format!("model.preset: {e}")))?,
+        // A resolved config (as saved in a run folder) lists every field itself.
+        Some(Value::String(name)) if name == RESOLVED => None,
+        None => None,
+        Some(Value::String(name)) => Some(
+            name.parse::<ModelPreset>()
+                .map_err(|e| ConfigError::Invalid(format!("model.preset: {e}")))?,
+        ),
         Some(other) => {
             return Err(ConfigError::Invalid(format!(
                 "model.preset = {other}: expected a preset name"
             )))
         }
-        // A resolved config (as saved in a run folder) lists every field itself.
-        None => {
-            table.insert("model".into(), Value::Table(model));
-            return Ok(());
-        }
+    };
+    let Some(preset) = preset else {
+        table.insert("model".into(), Value::Table(model));
+        return Ok(());
     };
     let mut full = Table::try_from(preset.config()).expect("model configs serialise to TOML");
     merge(&mut full, model);
@@ -503,9 +516,17 @@ pub fn validate(c: &ExperimentConfig) -> Result<(), ConfigError> {
     Ok(())
 }
 
-/// The config as TOML, as written into a run folder.
+/// `[model] preset` of a resolved config: every model field is listed, no preset applies.
+const RESOLVED: &str = "none";
+
+/// The config as TOML, as written into a run folder: loadable as a config file again, with
+/// `[model] preset = "none"` because the section lists every field.
 pub fn to_toml(c: &ExperimentConfig) -> String {
-    toml::to_string_pretty(c).expect("configs serialise to TOML")
+    let mut table = Table::try_from(c).expect("configs serialise to TOML");
+    if let Some(Value::Table(model)) = table.get_mut("model") {
+        model.insert("preset".into(), Value::String(RESOLVED.into()));
+    }
+    toml::to_string_pretty(&table).expect("configs serialise to TOML")
 }
 
 #[cfg(test)]
@@ -560,6 +581,8 @@ width = 48
         // The resolved config round-trips through its TOML.
         let again = from_table(toml::from_str(&to_toml(&c)).unwrap()).unwrap();
         assert_eq!(again, c);
+        let saved = write(dir.path(), "resolved.toml", &to_toml(&c));
+        assert_eq!(load(&saved, &[]).unwrap(), c);
     }
 
     #[test]

@@ -12,7 +12,7 @@ use anerf_data::{DatasetKind, LoadOptions, PrepareOptions, PreparedSubject};
 use anyhow::{bail, Context, Result};
 use burn::prelude::Device;
 
-use crate::config::{DatasetFormat, ExperimentConfig, VolumeSource};
+use crate::config::{ExperimentConfig, VolumeSource};
 
 /// A config together with the data it names, ready for training, evaluation or rendering.
 pub struct Experiment {
@@ -43,10 +43,7 @@ impl Experiment {
     /// the canonical body to `device`.
     pub fn open(config: ExperimentConfig, device: Device, progress: bool) -> Result<Self> {
         let d = &config.dataset;
-        let kind = match d.format {
-            DatasetFormat::ZjuMocap => DatasetKind::ZjuMocap,
-            DatasetFormat::H36m => DatasetKind::H36m,
-        };
+        let kind = d.format.kind();
         if !d.root.is_dir() {
             bail!(
                 "dataset.root {} is not a folder (expected a {:?} subject folder)",

@@ -7,6 +7,7 @@ pub mod cli;
 pub mod commands;
 pub mod config;
 pub mod experiment;
+pub mod mesh;
 pub mod render;
 pub mod run_dir;
 pub mod schedule;

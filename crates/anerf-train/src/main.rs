@@ -38,13 +38,22 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
                 .out
                 .clone()
                 .unwrap_or_else(|| std::path::Path::new("runs").join(&config.name));
-            let outcome = commands::train(config, &run, &a.common, a.resume, &interrupt_flag())?;
+            let outcome = commands::train(
+                config,
+                &run,
+                &a.common,
+                a.resume,
+                a.steps,
+                &interrupt_flag(),
+            )?;
             if outcome.interrupted {
                 return Ok(ExitCode::from(130));
             }
         }
         Command::Animate(a) => {
-            if commands::animate(&a.run, &a.common, a.resume, &interrupt_flag())?.interrupted {
+            if commands::animate(&a.run, &a.common, a.resume, a.steps, &interrupt_flag())?
+                .interrupted
+            {
                 return Ok(ExitCode::from(130));
             }
         }
@@ -64,6 +73,15 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
                 },
             };
             commands::render(&a.run, job, &a.common)?;
+        }
+        Command::Mesh(a) => {
+            let job = anerf_train::mesh::MeshJob {
+                voxel: a.voxel,
+                level: a.level,
+                smooth: a.smooth,
+                frames: a.frames,
+            };
+            commands::mesh(&a.run, &job, &a.common)?;
         }
         Command::Demo(a) => commands::demo(&a.out, a.preset, &a.common, &interrupt_flag())?,
     }

@@ -34,6 +34,8 @@ pub struct TrainOptions {
     pub resume: bool,
     /// Draw a progress bar on stderr.
     pub progress: bool,
+    /// Stop (with a checkpoint) after this many steps of this invocation, e.g. to split a run into sessions.
+    pub max_steps: Option<usize>,
 }
 
 /// How a stage ended.
@@ -43,7 +45,7 @@ pub struct StageOutcome {
     pub steps: usize,
     /// Mean loss over the last logged interval.
     pub loss: f32,
-    /// True when stopped by Ctrl-C (a checkpoint was written).
+    /// True when stopped before the last iteration (Ctrl-C or `max_steps`; a checkpoint was written).
     pub interrupted: bool,
     pub seconds: f64,
 }
@@ -203,8 +205,13 @@ pub fn train_stage1(
     let mut last_loss = f32::NAN;
     let samples = model_cfg.samples_per_ray;
     let mut interrupted = false;
+    let first_step = state.step;
     while state.step < cfg.iterations {
-        if stop.load(Ordering::SeqCst) {
+        if stop.load(Ordering::SeqCst)
+            || options
+                .max_steps
+                .is_some_and(|m| state.step - first_step >= m)
+        {
             interrupted = true;
             break;
         }
@@ -396,6 +403,20 @@ pub fn train_stage2(
             )
         }
     };
+    if !model_cfg.neural_blend_weights {
+        // Without the residual the novel-pose weights are the body model's: nothing to fit.
+        state.step = cfg.iterations;
+        Checkpoint::save(&run.checkpoints(), &state, &model, &optim)?;
+        eprintln!(
+            "stage 2: model.neural_blend_weights = false, novel poses use the body model's weights"
+        );
+        return Ok(StageOutcome {
+            steps: state.step,
+            loss: 0.0,
+            interrupted: false,
+            seconds: 0.0,
+        });
+    }
     let log = MetricsLog::open(run.metrics_log(), 2, options.resume.then_some(state.step))?;
     let bar = progress_bar(cfg.iterations, state.step, options.progress, 2);
     let started = Instant::now();
@@ -403,8 +424,13 @@ pub fn train_stage2(
     let mut last_loss = f32::NAN;
     let mut interrupted = false;
     let canonical_box = exp.canonical().bounds;
+    let first_step = state.step;
     while state.step < cfg.iterations {
-        if stop.load(Ordering::SeqCst) {
+        if stop.load(Ordering::SeqCst)
+            || options
+                .max_steps
+                .is_some_and(|m| state.step - first_step >= m)
+        {
             interrupted = true;
             break;
         }

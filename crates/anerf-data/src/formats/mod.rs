@@ -9,7 +9,6 @@ pub mod npz;
 pub mod pickle;
 pub mod pickle_write;
 
-use std::io::Write;
 use std::path::{Path, PathBuf};
 
 use thiserror::Error;
@@ -80,25 +79,10 @@ pub enum FormatWriteError {
     },
 }
 
-/// Writes `bytes` to `path` atomically: into a temporary file in the same folder, then renamed, so a
-/// reader never sees a half-written file.
+/// Writes `bytes` to `path` atomically ([`crate::atomic`]).
 pub(crate) fn write_file_atomic(path: &Path, bytes: &[u8]) -> Result<(), FormatWriteError> {
-    let io_err = |source| FormatWriteError::Io {
+    crate::atomic::write_bytes(path, bytes).map_err(|source| FormatWriteError::Io {
         path: path.to_path_buf(),
         source,
-    };
-    let name = path
-        .file_name()
-        .ok_or_else(|| io_err(std::io::Error::other("path has no file name")))?;
-    let mut tmp_name = std::ffi::OsString::from(".");
-    tmp_name.push(name);
-    tmp_name.push(format!(".tmp-{}", std::process::id()));
-    let tmp = path.with_file_name(tmp_name);
-    let result = std::fs::File::create(&tmp)
-        .and_then(|mut f| f.write_all(bytes).and_then(|()| f.sync_data()))
-        .and_then(|()| std::fs::rename(&tmp, path));
-    if result.is_err() {
-        let _ = std::fs::remove_file(&tmp);
-    }
-    result.map_err(io_err)
+    })
 }

@@ -1,7 +1,6 @@
 //! The preparation cache: a folder per input fingerprint (`<cache>/v1/<hash>/`), files written atomically
 //! (temporary file in the same folder, then rename), and a small binary format for volumes.
 
-use std::io::Write;
 use std::path::{Path, PathBuf};
 
 use anerf_core::body::BlendWeightVolume;
@@ -14,25 +13,9 @@ use crate::error::DataError;
 /// Bumped whenever the cache layout or any preparation algorithm changes.
 pub const CACHE_VERSION: &str = "v1";
 
-/// Writes `bytes` to `path` atomically: a sibling temporary file, flushed, then renamed over `path`.
+/// Writes `bytes` to `path` atomically ([`crate::atomic`]).
 pub fn atomic_write(path: &Path, bytes: &[u8]) -> Result<(), DataError> {
-    let dir = path.parent().unwrap_or(Path::new("."));
-    std::fs::create_dir_all(dir).map_err(|e| DataError::io(dir, e))?;
-    let name = path
-        .file_name()
-        .map(|n| n.to_string_lossy().into_owned())
-        .unwrap_or_default();
-    let tmp = dir.join(format!(".{name}.{}.tmp", std::process::id()));
-    let result = (|| {
-        let mut f = std::fs::File::create(&tmp)?;
-        f.write_all(bytes)?;
-        f.sync_all()?;
-        std::fs::rename(&tmp, path)
-    })();
-    result.map_err(|e| {
-        let _ = std::fs::remove_file(&tmp);
-        DataError::io(path, e)
-    })
+    crate::atomic::write_bytes(path, bytes).map_err(|e| DataError::io(path, e))
 }
 
 /// A SHA-256 fingerprint of everything a prepared subject depends on.

@@ -1,0 +1,51 @@
+//! The tiny synthetic subject and a config that trains on it, shared by the integration tests.
+
+use std::path::Path;
+
+use anerf_data::synthetic::{write_subject, SyntheticSpec};
+use anerf_train::config::{self, ExperimentConfig};
+
+/// Writes the tiny subject into `dir/subject` and returns a config training on it.
+pub fn tiny(dir: &Path, overrides: &[&str]) -> ExperimentConfig {
+    let subject = dir.join("subject");
+    if !subject.exists() {
+        write_subject(&SyntheticSpec::tiny(), &subject).unwrap();
+    }
+    let mut table = config::defaults();
+    let text = format!(
+        r#"
+name = "tiny"
+[dataset]
+format = "zju_mocap"
+root = "{}"
+cache = "{}"
+ratio = 1.0
+train_views = [0, 2]
+iccv = {{ train_frames = "0:6", novel_pose_frames = "6:10" }}
+[model]
+preset = "tiny"
+[train]
+iterations = 60
+batch = 256
+lr = 2e-3
+lr_final = 1e-3
+checkpoint_every = 20
+validate_every = 0
+log_every = 1
+[animate]
+iterations = 4
+batch = 1024
+log_every = 1
+[eval]
+frame_interval = 1
+chunk = 4096
+"#,
+        subject.display(),
+        dir.join("cache").display()
+    );
+    config::merge(&mut table, toml::from_str(&text).unwrap());
+    for o in overrides {
+        config::apply_override(&mut table, o).unwrap();
+    }
+    config::from_table(table).unwrap()
+}

@@ -1,0 +1,314 @@
+//! End-to-end training on the tiny synthetic subject: learning, exact resume, interrupts, full disks and bad
+//! configurations.
+
+mod common;
+
+use std::path::{Path, PathBuf};
+use std::process::Command;
+use std::sync::atomic::AtomicBool;
+use std::time::{Duration, Instant};
+
+use anerf_core::device::cpu_device;
+use anerf_eval::ImageMetrics;
+use anerf_train::checkpoint::Checkpoint;
+use anerf_train::cli::Common;
+use anerf_train::commands;
+use anerf_train::config::{self, ExperimentConfig};
+use anerf_train::experiment::Experiment;
+use anerf_train::render::render_view;
+use common::tiny;
+
+fn quiet() -> Common {
+    Common {
+        device: None,
+        overrides: Vec::new(),
+        quiet: true,
+    }
+}
+
+fn losses(run: &Path) -> Vec<f32> {
+    std::fs::read_to_string(run.join("metrics.jsonl"))
+        .unwrap()
+        .lines()
+        .map(|l| serde_json::from_str::<serde_json::Value>(l).unwrap())
+        .filter(|v| v["stage"] == 1)
+        .map(|v| v["loss"].as_f64().unwrap() as f32)
+        .collect()
+}
+
+/// PSNR of frame 0 seen from held-out camera 1 under the run's latest stage-1 model (or an untrained one).
+fn held_out_psnr(config: &ExperimentConfig, run: Option<&Path>) -> f64 {
+    let device = cpu_device();
+    let mut exp = Experiment::open(config.clone(), device.clone(), false).unwrap();
+    let model = match run {
+        Some(r) => {
+            Checkpoint::latest(&r.join("checkpoints"), 1)
+                .unwrap()
+                .unwrap()
+                .load_model(&config.model, &device)
+                .unwrap()
+                .0
+        }
+        None => {
+            device.seed(config.seed);
+            anerf_core::model::AnimatableNerf::new(&config.model, exp.model_sizes(), &device)
+        }
+    };
+    let camera = exp.prepared.cameras[1].clone();
+    let image = render_view(
+        &model,
+        &mut exp,
+        anerf_core::FrameId(0),
+        &camera,
+        Some(anerf_core::ViewId(1)),
+        4096,
+    )
+    .unwrap();
+    ImageMetrics::compute(
+        &image.prediction,
+        image.ground_truth.as_ref().unwrap(),
+        Some(&image.mask),
+    )
+    .unwrap()
+    .psnr
+}
+
+#[test]
+fn a_few_steps_lower_the_loss_and_improve_a_held_out_view() {
+    let dir = tempfile::tempdir().unwrap();
+    let config = tiny(dir.path(), &[]);
+    let before = held_out_psnr(&config, None);
+    let run = dir.path().join("run");
+    commands::train(
+        config.clone(),
+        &run,
+        &quiet(),
+        false,
+        None,
+        &AtomicBool::new(false),
+    )
+    .unwrap();
+    let l = losses(&run);
+    assert_eq!(l.len(), 60);
+    let (first, last) = (
+        l[..10].iter().sum::<f32>() / 10.0,
+        l[50..].iter().sum::<f32>() / 10.0,
+    );
+    assert!(
+        last < 0.8 * first,
+        "mean loss of the first ten steps {first}, of the last ten {last}"
+    );
+    let after = held_out_psnr(&config, Some(&run));
+    assert!(
+        after > before + 1.0,
+        "held-out PSNR {before:.2} dB before, {after:.2} dB after training"
+    );
+}
+
+#[test]
+fn resuming_gives_the_losses_of_an_uninterrupted_run() {
+    let dir = tempfile::tempdir().unwrap();
+    let config = tiny(
+        dir.path(),
+        &["train.iterations=8", "train.checkpoint_every=100"],
+    );
+    let straight = dir.path().join("straight");
+    let split = dir.path().join("split");
+    let never = AtomicBool::new(false);
+    commands::train(config.clone(), &straight, &quiet(), false, None, &never).unwrap();
+    let first = commands::train(config.clone(), &split, &quiet(), false, Some(3), &never).unwrap();
+    assert!(first.interrupted && first.steps == 3);
+    let second = commands::train(config.clone(), &split, &quiet(), true, None, &never).unwrap();
+    assert_eq!(second.steps, 8);
+    let (a, b) = (losses(&straight), losses(&split));
+    assert_eq!(a.len(), 8);
+    assert_eq!(a, b, "losses of the uninterrupted and the resumed run");
+
+    // Stage 2 resumes the same way.
+    let never = AtomicBool::new(false);
+    commands::animate(&straight, &quiet(), false, None, &never).unwrap();
+    commands::animate(&split, &quiet(), false, Some(2), &never).unwrap();
+    commands::animate(&split, &quiet(), true, None, &never).unwrap();
+    let stage2 = |run: &Path| -> Vec<String> {
+        std::fs::read_to_string(run.join("metrics.jsonl"))
+            .unwrap()
+            .lines()
+            .filter(|l| l.contains("\"stage\":2"))
+            .map(|l| serde_json::from_str::<serde_json::Value>(l).unwrap()["loss"].to_string())
+            .collect()
+    };
+    assert_eq!(stage2(&straight).len(), 4);
+    assert_eq!(stage2(&straight), stage2(&split));
+}
+
+fn anerf() -> Command {
+    Command::new(env!("CARGO_BIN_EXE_anerf"))
+}
+
+fn write_config(dir: &Path, config: &ExperimentConfig) -> PathBuf {
+    let path = dir.join("tiny.toml");
+    std::fs::write(&path, config::to_toml(config)).unwrap();
+    path
+}
+
+#[test]
+fn an_interrupt_leaves_a_loadable_checkpoint() {
+    let dir = tempfile::tempdir().unwrap();
+    let config = tiny(
+        dir.path(),
+        &["train.iterations=100000", "train.checkpoint_every=100000"],
+    );
+    let path = write_config(dir.path(), &config);
+    let run = dir.path().join("run");
+    let mut child = anerf()
+        .args([
+            "train",
+            path.to_str().unwrap(),
+            "--quiet",
+            "--out",
+            run.to_str().unwrap(),
+        ])
+        .spawn()
+        .unwrap();
+    let started = Instant::now();
+    while !run.join("metrics.jsonl").is_file() || losses(&run).len() < 3 {
+        assert!(
+            started.elapsed() < Duration::from_secs(300),
+            "training did not start"
+        );
+        std::thread::sleep(Duration::from_millis(100));
+    }
+    let status = Command::new("kill")
+        .args(["-INT", &child.id().to_string()])
+        .status()
+        .unwrap();
+    assert!(status.success());
+    let exit = child.wait().unwrap();
+    assert_eq!(exit.code(), Some(130), "an interrupted run exits with 130");
+    let ck = Checkpoint::latest(&run.join("checkpoints"), 1)
+        .unwrap()
+        .expect("a checkpoint after Ctrl-C");
+    let (_, state) = ck.load_model(&config.model, &cpu_device()).unwrap();
+    assert!(state.step >= 3 && state.step < 100000, "{}", state.step);
+}
+
+#[test]
+fn a_full_disk_while_checkpointing_keeps_the_previous_checkpoint() {
+    let dir = tempfile::tempdir().unwrap();
+    let config = tiny(
+        dir.path(),
+        &["train.iterations=4", "train.checkpoint_every=2"],
+    );
+    let path = write_config(dir.path(), &config);
+    let run = dir.path().join("run");
+    let never = AtomicBool::new(false);
+    commands::train(config.clone(), &run, &quiet(), false, Some(2), &never).unwrap();
+    let before = Checkpoint::latest(&run.join("checkpoints"), 1)
+        .unwrap()
+        .unwrap();
+    let model_bytes = std::fs::read(before.dir.join("model.bpk")).unwrap();
+    // Resume with files limited to 8 KiB: the log still fits, the model file does not (EFBIG, as on a full
+    // disk). SIGXFSZ is ignored so that the write fails instead of killing the process.
+    let script = format!(
+        "trap '' XFSZ; ulimit -f 16; exec {} train {} --resume --quiet --out {}",
+        env!("CARGO_BIN_EXE_anerf"),
+        path.display(),
+        run.display()
+    );
+    let out = Command::new("bash").args(["-c", &script]).output().unwrap();
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success(), "{stderr}");
+    assert!(
+        stderr.contains("writing checkpoint")
+            && stderr.contains("previous checkpoint is unchanged"),
+        "{stderr}"
+    );
+    let after = Checkpoint::latest(&run.join("checkpoints"), 1)
+        .unwrap()
+        .unwrap();
+    assert_eq!(after.dir, before.dir);
+    assert_eq!(
+        std::fs::read(after.dir.join("model.bpk")).unwrap(),
+        model_bytes
+    );
+    after.load_model(&config.model, &cpu_device()).unwrap();
+    assert!(std::fs::read_dir(run.join("checkpoints"))
+        .unwrap()
+        .all(|e| !e.unwrap().file_name().to_string_lossy().starts_with(".tmp")));
+}
+
+#[test]
+fn bad_configurations_are_named() {
+    let dir = tempfile::tempdir().unwrap();
+    let never = AtomicBool::new(false);
+    let err = |c: ExperimentConfig| {
+        format!(
+            "{:#}",
+            commands::train(c, &dir.path().join("bad"), &quiet(), false, None, &never).unwrap_err()
+        )
+    };
+    let missing = tiny(dir.path(), &["dataset.root=\"/nonexistent/CoreView_999\""]);
+    let e = err(missing);
+    assert!(
+        e.contains("dataset.root") && e.contains("/nonexistent/CoreView_999"),
+        "{e}"
+    );
+    let e = err(tiny(dir.path(), &["dataset.train_views=[0, 9]"]));
+    assert!(e.contains("dataset.train_views") && e.contains('9'), "{e}");
+    let e = err(tiny(dir.path(), &["dataset.iccv.train_frames=\"50:60\""]));
+    assert!(e.contains("train_frames") && e.contains("50:60"), "{e}");
+
+    // A checkpoint of another model config is refused.
+    let run = dir.path().join("run");
+    commands::train(
+        tiny(dir.path(), &["train.iterations=2"]),
+        &run,
+        &quiet(),
+        false,
+        None,
+        &never,
+    )
+    .unwrap();
+    let wider = tiny(dir.path(), &["train.iterations=4", "model.width=48"]);
+    let e = format!(
+        "{:#}",
+        commands::train(wider, &run, &quiet(), true, None, &never).unwrap_err()
+    );
+    assert!(e.contains("model"), "{e}");
+}
+
+#[test]
+fn a_diverging_run_stops_with_a_clear_message_and_keeps_the_last_good_checkpoint() {
+    let dir = tempfile::tempdir().unwrap();
+    // An absurd learning rate blows the weights up after the first step; the loss turns infinite or NaN.
+    let config = tiny(
+        dir.path(),
+        &[
+            "train.lr=1e30",
+            "train.lr_final=1e30",
+            "train.grad_clip=0",
+            "train.checkpoint_every=1",
+            "train.iterations=20",
+        ],
+    );
+    let run = dir.path().join("run");
+    let err = commands::train(
+        config.clone(),
+        &run,
+        &quiet(),
+        false,
+        None,
+        &AtomicBool::new(false),
+    )
+    .unwrap_err();
+    let message = format!("{err:#}");
+    assert!(
+        message.contains("the loss is") && message.contains("last good checkpoint"),
+        "{message}"
+    );
+    let ck = Checkpoint::latest(&run.join("checkpoints"), 1)
+        .unwrap()
+        .expect("a checkpoint before the divergence");
+    let (_, state) = ck.load_model(&config.model, &cpu_device()).unwrap();
+    assert!(state.step >= 1 && state.step < 20, "{}", state.step);
+}
