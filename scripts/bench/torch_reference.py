@@ -8,7 +8,7 @@ backward, gradient clipping to ±40 and an Adam step.
 
 The network sizes come from the Rust presets, so both sides always agree:
 
-    cargo run -p anerf-train --example bench -- --describe --presets paper > /tmp/paper.json
+    cargo run -- bench --describe --presets paper > /tmp/paper.json
     scripts/bench/.venv/bin/python scripts/bench/torch_reference.py --config /tmp/paper.json --steps 3
 
 Prints one JSON object (the same keys as `anerf bench --json`). Run it in scripts/bench/.venv
@@ -17,6 +17,7 @@ Prints one JSON object (the same keys as `anerf bench --json`). Run it in script
 
 import argparse
 import json
+import math
 import os
 import resource
 import time
@@ -45,6 +46,66 @@ def uniform_linear(d_in, d_out, fan_in, bias=True):
     if bias:
         nn.init.uniform_(layer.bias, -bound, bound)
     return layer
+
+
+class HashGrid(nn.Module):
+    """anerf_core::model::hash_grid::encode_reference: every corner of every level gathered with one
+    index_select (PyTorch has no hash-grid kernel on the CPU)."""
+
+    PRIMES = (1, 2654435761, 805459861)
+
+    def __init__(self, c):
+        super().__init__()
+        levels, self.t, self.f, self.h = c["levels"], 1 << c["log2_table_size"], c["features_per_level"], c["half_extent"]
+        growth = (math.log(c["finest_resolution"]) - math.log(c["base_resolution"])) / (levels - 1) if levels > 1 else 0.0
+        self.res = [round(c["base_resolution"] * math.exp(growth * i)) for i in range(levels)]
+        self.table = nn.Parameter(torch.empty(levels * self.t, self.f).uniform_(-1e-4, 1e-4))
+
+    def output_dim(self):
+        return len(self.res) * self.f
+
+    def forward(self, x):
+        n = x.shape[0]
+        u = ((x + self.h) / (2 * self.h)).clamp(0.0, 1.0)
+        rows, weights = [], []
+        for level, res in enumerate(self.res):
+            p = u * res
+            base = p.detach().floor().clamp(0, res - 1)
+            frac = p - base
+            b = base.long()
+            side = res + 1
+            for c in range(8):
+                v = [b[:, a] + ((c >> a) & 1) for a in range(3)]
+                if side**3 <= self.t:
+                    row = v[0] + (v[1] + v[2] * side) * side
+                else:
+                    row = (v[0] ^ (v[1] * self.PRIMES[1]) ^ (v[2] * self.PRIMES[2])) & (self.t - 1)
+                rows.append(row + level * self.t)
+                w = None
+                for a in range(3):
+                    wa = frac[:, a] if (c >> a) & 1 else 1.0 - frac[:, a]
+                    w = wa if w is None else w * wa
+                weights.append(w)
+        levels = len(self.res)
+        g = self.table.index_select(0, torch.cat(rows)).reshape(levels, 8, n, self.f)
+        w = torch.stack(weights).reshape(levels, 8, n, 1)
+        return (g * w).sum(1).permute(1, 0, 2).reshape(n, levels * self.f)
+
+
+class PointInput(nn.Module):
+    """A field's hash grid when the config has one, else the positional encoding."""
+
+    def __init__(self, cfg, which):
+        super().__init__()
+        enc = cfg.get("encoding", {"kind": "frequency"})
+        self.grid = HashGrid(enc[which]) if enc["kind"] == "hash_grid" else None
+        self.frequencies = cfg["xyz_frequencies"]
+
+    def output_dim(self):
+        return self.grid.output_dim() if self.grid is not None else 3 + 6 * self.frequencies
+
+    def forward(self, x):
+        return self.grid(x) if self.grid is not None else encode(x, self.frequencies)
 
 
 class SkipMlp(nn.Module):
@@ -88,9 +149,10 @@ class CanonicalNerf(nn.Module):
     def __init__(self, cfg):
         super().__init__()
         w = cfg["width"]
-        xyz = 3 + 6 * cfg["xyz_frequencies"]
+        self.points = PointInput(cfg, "nerf")
+        self.dir_frequencies = cfg["dir_frequencies"]
         d = 3 + 6 * cfg["dir_frequencies"]
-        self.trunk = SkipMlp(xyz, 0, w, cfg["depth"], cfg.get("skip"))
+        self.trunk = SkipMlp(self.points.output_dim(), 0, w, cfg["depth"], cfg.get("skip"))
         self.density = uniform_linear(w, 1, w)
         self.feature = uniform_linear(w, w, w)
         self.appearance_fc = uniform_linear(w + cfg["appearance_code_dim"], w, w + cfg["appearance_code_dim"])
@@ -98,9 +160,10 @@ class CanonicalNerf(nn.Module):
         self.rgb = uniform_linear(w // 2, 3, w // 2)
         self.appearance = nn.Embedding(FRAMES, cfg["appearance_code_dim"])
 
-    def forward(self, xyz, dirs, index):
-        n = xyz.shape[0]
-        h = self.trunk(xyz)
+    def forward(self, points, dirs, index):
+        n = points.shape[0]
+        dirs = encode(dirs, self.dir_frequencies)
+        h = self.trunk(self.points(points))
         density = self.density(h)
         code = self.appearance.weight[index : index + 1].expand(n, -1)
         f = self.appearance_fc(torch.cat([self.feature(h), code], 1))
@@ -111,14 +174,14 @@ class CanonicalNerf(nn.Module):
 class BlendField(nn.Module):
     def __init__(self, cfg):
         super().__init__()
-        xyz = 3 + 6 * cfg["xyz_frequencies"]
-        self.trunk = SkipMlp(xyz, cfg["blend_code_dim"], cfg["width"], cfg["depth"], cfg.get("skip"))
+        self.points = PointInput(cfg, "blend")
+        self.trunk = SkipMlp(self.points.output_dim(), cfg["blend_code_dim"], cfg["width"], cfg["depth"], cfg.get("skip"))
         self.head = uniform_linear(cfg["width"], JOINTS, cfg["width"])
         self.codes = nn.Embedding(FRAMES + 1, cfg["blend_code_dim"])
 
-    def forward(self, xyz, code, prior):
+    def forward(self, points, code, prior):
         psi = self.codes.weight[code : code + 1]
-        residual = self.head(self.trunk(xyz, psi))
+        residual = self.head(self.trunk(self.points(points), psi))
         return torch.softmax(torch.log(prior + 1e-9) + residual, 1)
 
 
@@ -171,8 +234,6 @@ def main():
     with open(args.config) as f:
         described = json.loads(f.readline())
     preset, cfg = described["preset"], described["model"]
-    if cfg.get("encoding", {"kind": "frequency"}).get("kind", "frequency") != "frequency":
-        raise SystemExit(f"preset {preset}: only the frequency encoding is mirrored here")
     if args.threads > 0:
         torch.set_num_threads(args.threads)
     load_before = os.getloadavg()[0]
@@ -192,15 +253,14 @@ def main():
     nerf, blend = CanonicalNerf(cfg), BlendField(cfg)
     params = list(nerf.parameters()) + list(blend.parameters())
     optim = torch.optim.Adam(params, lr=5e-4, eps=1e-8)
-    xyz_f, dir_f = cfg["xyz_frequencies"], cfg["dir_frequencies"]
 
     def step():
-        w = blend(encode(points, xyz_f), 2, prior)
+        w = blend(points, 2, prior)
         canonical = inverse_lbs(bones, points, w)
         inside = ((canonical >= -box) & (canonical <= box)).all(1, keepdim=True)
-        density, rgb = nerf(encode(canonical, xyz_f), encode(dirs, dir_f), 1)
+        density, rgb = nerf(canonical, dirs, 1)
         density = density.masked_fill(~inside, 0.0)
-        w_can = blend(encode(canonical, xyz_f), 0, volume_weights(table, dims, -1.0, 2.0, canonical))
+        w_can = blend(canonical, 0, volume_weights(table, dims, -1.0, 2.0, canonical))
         d = density.detach()
         mask = ((d > 0) | (torch.arange(n).reshape(n, 1) == d.argmax())).float()
         diff = (w - w_can).abs()
@@ -214,12 +274,13 @@ def main():
         optim.step()
         return loss.item()
 
-    times = []
+    times, cpu = [], []
     for i in range(args.steps + 1):
-        started = time.perf_counter()
+        started, cpu_started = time.perf_counter(), time.process_time()
         step()
         if i > 0:
             times.append(time.perf_counter() - started)
+            cpu.append(time.process_time() - cpu_started)
     ordered = sorted(times)
     k = len(ordered)
     median = None if k == 0 else (ordered[k // 2] if k % 2 else 0.5 * (ordered[k // 2 - 1] + ordered[k // 2]))
@@ -230,6 +291,7 @@ def main():
                 "points": n,
                 "step_seconds": times,
                 "step_median": median,
+                "step_cpu_seconds": cpu,
                 "points_per_second": None if median is None else n / median,
                 "step_peak_mib": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0,
                 "load_before": load_before,

@@ -65,6 +65,10 @@ pub struct BenchArgs {
     /// `scripts/bench/torch_reference.py`), measuring nothing.
     #[arg(long)]
     pub describe: bool,
+    /// Use the system allocator's behaviour instead of the `anerf` binary's block cache (to measure what the
+    /// cache buys).
+    #[arg(long)]
+    pub system_allocator: bool,
 }
 
 /// One line of `--describe`.
@@ -83,6 +87,9 @@ pub struct PresetFigures {
     pub step_seconds: Vec<f64>,
     /// Median of `step_seconds`.
     pub step_median: Option<f64>,
+    /// CPU seconds (user + system, all threads) of each timed step: less sensitive than wall time to other
+    /// programs sharing the cores.
+    pub step_cpu_seconds: Vec<f64>,
     /// `points / step_median`.
     pub points_per_second: Option<f64>,
     /// Peak resident memory during the steps, MiB (`VmHWM`).
@@ -143,13 +150,14 @@ pub fn run(args: &BenchArgs) -> Result<Vec<PresetFigures>> {
     for preset in presets {
         let load_before = load_average();
         let config = preset.config();
-        let (step_seconds, step_peak_mib) = if args.steps > 0 {
+        let (step_times, step_peak_mib) = if args.steps > 0 {
             reset_peak_memory();
             let times = time_steps(&config, args.points, args.steps, &device.clone().autodiff());
             (times, peak_memory_mib())
         } else {
             (Vec::new(), None)
         };
+        let step_seconds: Vec<f64> = step_times.iter().map(|t| t.wall).collect();
         let render = if args.render_size > 0 {
             Some(time_render(args, preset, &device)?)
         } else {
@@ -161,6 +169,7 @@ pub fn run(args: &BenchArgs) -> Result<Vec<PresetFigures>> {
             points: args.points,
             points_per_second: step_median.map(|s| args.points as f64 / s),
             step_median,
+            step_cpu_seconds: step_times.iter().map(|t| t.cpu).collect(),
             step_seconds,
             step_peak_mib,
             render,
@@ -337,23 +346,54 @@ fn bench_optimizer() -> ModuleOptimizer {
         .init()
 }
 
+/// Wall-clock and CPU time of one step, seconds.
+#[derive(Debug, Clone, Copy)]
+pub struct StepTime {
+    pub wall: f64,
+    pub cpu: f64,
+}
+
 /// One warm-up step, then `steps` timed steps of forward, backward and Adam on an autodiff `device`.
-pub fn time_steps(config: &ModelConfig, points: usize, steps: usize, device: &Device) -> Vec<f64> {
+pub fn time_steps(
+    config: &ModelConfig,
+    points: usize,
+    steps: usize,
+    device: &Device,
+) -> Vec<StepTime> {
     let work = StepWorkload::new(points, 7, device);
     let mut model = work.model(config, device);
     let mut optim = bench_optimizer();
     let mut times = Vec::with_capacity(steps);
     for i in 0..=steps {
-        let started = Instant::now();
+        let (started, cpu) = (Instant::now(), process_cpu_seconds());
         let loss = work.loss(&model);
         let grads = GradientsParams::from_grads(loss.backward(), &model);
         model = optim.step(5e-4, model, grads);
         device.sync().expect("the device finishes its queue");
         if i > 0 {
-            times.push(started.elapsed().as_secs_f64());
+            times.push(StepTime {
+                wall: started.elapsed().as_secs_f64(),
+                cpu: process_cpu_seconds() - cpu,
+            });
         }
     }
     times
+}
+
+/// User + system CPU time of this process (all threads), seconds, from `/proc/self/stat` (clock ticks of
+/// 1/100 s); NaN where unavailable.
+fn process_cpu_seconds() -> f64 {
+    let Ok(stat) = std::fs::read_to_string("/proc/self/stat") else {
+        return f64::NAN;
+    };
+    // Fields after the parenthesised command name; utime and stime are fields 14 and 15 (1-based).
+    let after = stat.rsplit_once(')').map_or("", |(_, rest)| rest);
+    let fields: Vec<&str> = after.split_whitespace().collect();
+    let ticks = |i: usize| fields.get(i).and_then(|v| v.parse::<f64>().ok());
+    match (ticks(11), ticks(12)) {
+        (Some(u), Some(s)) => (u + s) / 100.0,
+        _ => f64::NAN,
+    }
 }
 
 /// Renders one `size`×`size` view of the demo subject (or of `args.run`'s subject with its model).

@@ -5,7 +5,7 @@
 use std::fs;
 use std::path::{Path, PathBuf};
 
-use anerf_core::model::{AnimatableNerf, ModelConfig, ModelSizes};
+use anerf_core::model::{AnimatableNerf, ModelConfig, ModelSizes, OccupancyGrid};
 use anerf_data::RaySampler;
 use anyhow::{bail, Context, Result};
 use burn::module::Module;
@@ -60,6 +60,8 @@ pub struct Checkpoint {
 }
 
 const MODEL: &str = "model.bpk";
+/// The model's occupancy grid (JSON), when its config has one.
+const OCCUPANCY: &str = "occupancy.json";
 const OPTIM: &str = "optim.bpk";
 const STATE: &str = "state.json";
 /// Checkpoints kept per stage (older ones are removed after a new one is in place).
@@ -93,6 +95,12 @@ impl Checkpoint {
                 &tmp.join(STATE),
                 serde_json::to_string_pretty(state)?.as_bytes(),
             )?;
+            if let Some(grid) = model.occupancy() {
+                write_atomic(
+                    &tmp.join(OCCUPANCY),
+                    serde_json::to_string(grid)?.as_bytes(),
+                )?;
+            }
             for f in [MODEL, OPTIM] {
                 fs::File::open(tmp.join(f))?.sync_all()?;
             }
@@ -160,11 +168,27 @@ impl Checkpoint {
                 serde_json::to_string(expected)?
             );
         }
-        let model = state
+        let mut model = state
             .empty_model(device)
             .try_load_file(self.dir.join(MODEL))
             .map_err(|e| anyhow::anyhow!("loading {}: {e}", self.dir.join(MODEL).display()))?;
+        model.set_occupancy(self.occupancy()?);
         Ok((model, state))
+    }
+
+    /// The occupancy grid saved with the model, if it had one.
+    fn occupancy(&self) -> Result<Option<OccupancyGrid>> {
+        let path = self.dir.join(OCCUPANCY);
+        if !path.exists() {
+            return Ok(None);
+        }
+        let text =
+            fs::read_to_string(&path).with_context(|| format!("reading {}", path.display()))?;
+        let grid: OccupancyGrid = serde_json::from_str(&text)
+            .with_context(|| format!("{} is not an occupancy grid", path.display()))?;
+        grid.validate()
+            .map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
+        Ok(Some(grid))
     }
 
     /// The optimiser state into `optim`.

@@ -38,6 +38,8 @@ pub enum Command {
     Mesh(MeshArgs),
     /// PSNR and SSIM of two images (with a mask: the paper's protocol).
     Compare(CompareArgs),
+    /// Training-step time, throughput, render time and peak memory of each model preset.
+    Bench(crate::bench::BenchArgs),
 }
 
 /// Options every command that computes takes.
@@ -78,7 +80,7 @@ pub struct TrainArgs {
     /// Novel-pose frames start:end[:step] (default: the frames after the training frames).
     #[arg(long)]
     pub novel_pose_frames: Option<String>,
-    /// Model preset (paper, cpu, tiny).
+    /// Model preset (paper, cpu, fast, tiny).
     #[arg(long)]
     pub preset: Option<ModelPreset>,
     /// Training iterations.

@@ -10,7 +10,7 @@ use anerf_data::DatasetKind;
 use anerf_eval::report::{markdown_table, EvalRecorder, EvalSplit, Summary};
 use anyhow::{bail, Context, Result};
 use burn::prelude::Device;
-use toml::{Table, Value};
+use toml::Table;
 
 use crate::checkpoint::Checkpoint;
 use crate::cli::Common;
@@ -28,7 +28,51 @@ pub fn device(config: &ExperimentConfig, common: &Common) -> Result<Device> {
 
 /// Loads a config file with `--set` overrides.
 pub fn load_config(path: &Path, common: &Common) -> Result<ExperimentConfig> {
-    config::load(path, &common.overrides).with_context(|| format!("in config {}", path.display()))
+    load_config_with(path, &common.overrides)
+}
+
+fn load_config_with(path: &Path, overrides: &[String]) -> Result<ExperimentConfig> {
+    config::load(path, overrides).with_context(|| format!("in config {}", path.display()))
+}
+
+/// The config of `anerf train`: the file (or `--data` folder), then the flags, then `--set`.
+pub fn train_config(args: &crate::cli::TrainArgs) -> Result<ExperimentConfig> {
+    match (&args.config, &args.data) {
+        (Some(path), None) => {
+            let mut overrides = train_flag_overrides(args)?;
+            overrides.extend(args.common.overrides.iter().cloned());
+            load_config_with(path, &overrides)
+        }
+        (None, Some(data)) => config_for_folder(data, args),
+        _ => bail!("give a config file or --data <folder>"),
+    }
+}
+
+/// `anerf train`'s flags (`--train-views`, `--train-frames`, `--novel-pose-frames`, `--preset`,
+/// `--iterations`) as `section.key=value` overrides. Frame flags define the ICCV split and select it.
+fn train_flag_overrides(args: &crate::cli::TrainArgs) -> Result<Vec<String>> {
+    let mut overrides = Vec::new();
+    if let Some(v) = &args.train_views {
+        overrides.push(format!("dataset.train_views={v:?}"));
+    }
+    for (key, value) in [
+        ("train_frames", &args.train_frames),
+        ("novel_pose_frames", &args.novel_pose_frames),
+    ] {
+        if let Some(v) = value {
+            v.parse::<FrameRange>()
+                .map_err(|e| anyhow::anyhow!("--{}: {e}", key.replace('_', "-")))?;
+            overrides.push(format!("dataset.iccv.{key}=\"{v}\""));
+            overrides.push("dataset.ranges=\"iccv\"".into());
+        }
+    }
+    if let Some(p) = args.preset {
+        overrides.push(format!("model.preset=\"{}\"", p.name()));
+    }
+    if let Some(n) = args.iterations {
+        overrides.push(format!("train.iterations={n}"));
+    }
+    Ok(overrides)
 }
 
 /// `anerf synth`.
@@ -114,43 +158,10 @@ preset = "cpu"
     ))?;
     let mut merged = config::defaults();
     config::merge(&mut merged, std::mem::take(&mut table));
-    let set = |key: &str, value: Value| {
-        let mut t = Table::new();
-        t.insert(key.to_string(), value);
-        t
-    };
-    let mut overrides = Vec::new();
-    if let Some(v) = &args.train_views {
-        overrides.push((
-            "dataset",
-            set(
-                "train_views",
-                Value::Array(v.iter().map(|&x| Value::Integer(x as i64)).collect()),
-            ),
-        ));
-    }
-    if let Some(p) = args.preset {
-        overrides.push(("model", set("preset", Value::String(p.name().into()))));
-    }
-    if let Some(n) = args.iterations {
-        overrides.push(("train", set("iterations", Value::Integer(n as i64))));
-    }
-    for (section, values) in overrides {
-        let mut t = Table::new();
-        t.insert(section.into(), Value::Table(values));
-        config::merge(&mut merged, t);
-    }
-    for (key, value) in [
-        ("train_frames", &args.train_frames),
-        ("novel_pose_frames", &args.novel_pose_frames),
-    ] {
-        if let Some(v) = value {
-            v.parse::<FrameRange>()
-                .map_err(|e| anyhow::anyhow!("--{}: {e}", key.replace('_', "-")))?;
-            config::apply_override(&mut merged, &format!("dataset.iccv.{key}=\"{v}\""))?;
-        }
-    }
-    for o in &args.common.overrides {
+    for o in train_flag_overrides(args)?
+        .iter()
+        .chain(&args.common.overrides)
+    {
         config::apply_override(&mut merged, o)?;
     }
     Ok(config::from_table(merged)?)

@@ -235,6 +235,14 @@ pub struct StageConfig {
     pub checkpoint_every: usize,
     pub validate_every: usize,
     pub log_every: usize,
+    /// Stage 1: never draw rays from the 5×5 band around mask edges (the reference's `erode_edge`, for the
+    /// imprecise masks of real captures). Synthetic subjects have exact masks and turn it off.
+    #[serde(default = "default_true")]
+    pub skip_mask_edges: bool,
+}
+
+fn default_true() -> bool {
+    true
 }
 
 /// `[eval]`.

@@ -6,6 +6,11 @@ use anerf_train::cli::{interrupt_flag, Cli, Command};
 use anerf_train::commands;
 use clap::Parser;
 
+/// Large freed blocks are kept for reuse: Burn allocates every intermediate tensor anew (see
+/// `anerf_core::alloc`; `anerf bench` measures the difference with `--system-allocator`).
+#[global_allocator]
+static ALLOCATOR: anerf_core::alloc::BlockCache = anerf_core::alloc::BlockCache::new();
+
 fn main() -> ExitCode {
     let cli = Cli::parse();
     match run(cli) {
@@ -29,11 +34,7 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
             commands::prepare(commands::load_config(&a.config, &a.common)?, &a.common)?
         }
         Command::Train(a) => {
-            let config = match (&a.config, &a.data) {
-                (Some(path), None) => commands::load_config(path, &a.common)?,
-                (None, Some(data)) => commands::config_for_folder(data, &a)?,
-                _ => anyhow::bail!("give a config file or --data <folder>"),
-            };
+            let config = commands::train_config(&a)?;
             let run = a
                 .out
                 .clone()
@@ -82,6 +83,12 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
                 frames: a.frames,
             };
             commands::mesh(&a.run, &job, &a.common)?;
+        }
+        Command::Bench(a) => {
+            if a.system_allocator {
+                ALLOCATOR.disable();
+            }
+            anerf_train::bench::run(&a)?;
         }
         Command::Demo(a) => commands::demo(&a.out, a.preset, &a.common, &interrupt_flag())?,
     }

@@ -30,6 +30,7 @@ mod tests {
             checkpoint_every: 1,
             validate_every: 1,
             log_every: 1,
+            skip_mask_edges: true,
         }
     }
 

@@ -63,8 +63,12 @@ struct LogLine {
     blend: f32,
     lr: f64,
     items_per_second: f64,
+    /// Samples that survive culling / all samples.
     #[serde(skip_serializing_if = "Option::is_none")]
     surviving_fraction: Option<f32>,
+    /// Samples that reach the canonical NeRF (culling and the occupancy grid) / all samples.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    nerf_fraction: Option<f32>,
     #[serde(skip_serializing_if = "Option::is_none")]
     validation_psnr: Option<f64>,
 }
@@ -104,18 +108,28 @@ struct Window {
     mse: f64,
     blend: f64,
     surviving: f64,
+    occupied: f64,
     items: usize,
     started: Option<Instant>,
 }
 
 impl Window {
-    fn add(&mut self, loss: f32, mse: f32, blend: f32, surviving: f32, items: usize) {
+    fn add(
+        &mut self,
+        loss: f32,
+        mse: f32,
+        blend: f32,
+        surviving: f32,
+        occupied: f32,
+        items: usize,
+    ) {
         self.started.get_or_insert_with(Instant::now);
         self.steps += 1;
         self.loss += loss as f64;
         self.mse += mse as f64;
         self.blend += blend as f64;
         self.surviving += surviving as f64;
+        self.occupied += occupied as f64;
         self.items += items;
     }
 
@@ -178,6 +192,7 @@ pub fn train_stage1(
                     exp.config.seed,
                     SamplerOptions {
                         rays: cfg.batch,
+                        skip_mask_edges: cfg.skip_mask_edges,
                         ..SamplerOptions::default()
                     },
                 );
@@ -254,12 +269,14 @@ pub fn train_stage1(
         let grads = GradientsParams::from_grads(loss.backward(), &model);
         model = optim.step(lr, model, grads);
         state.step += 1;
+        model.update_occupancy(exp.canonical(), state.step);
         last_loss = values[0];
         window.add(
             values[0],
             values[1],
             values[2],
             out.surviving_samples as f32 / out.total_samples as f32,
+            out.occupied_samples as f32 / out.total_samples as f32,
             rays.len(),
         );
 
@@ -283,6 +300,7 @@ pub fn train_stage1(
                 lr,
                 items_per_second: window.rate(),
                 surviving_fraction: Some(window.mean(window.surviving)),
+                nerf_fraction: Some(window.mean(window.occupied)),
                 validation_psnr,
             };
             bar.set_message(format!(
@@ -469,7 +487,7 @@ pub fn train_stage2(
         model = optim.step(lr, model, grads);
         state.step += 1;
         last_loss = values[0];
-        window.add(values[0], 0.0, values[0], 1.0, 2 * cfg.batch);
+        window.add(values[0], 0.0, values[0], 1.0, 1.0, 2 * cfg.batch);
         if state.step % cfg.log_every == 0 || state.step == cfg.iterations {
             let line = LogLine {
                 stage: 2,
@@ -481,6 +499,7 @@ pub fn train_stage2(
                 lr,
                 items_per_second: window.rate(),
                 surviving_fraction: None,
+                nerf_fraction: None,
                 validation_psnr: None,
             };
             bar.set_message(format!(

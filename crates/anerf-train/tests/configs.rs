@@ -119,3 +119,57 @@ fn zju_mocap_ranges_match_the_reference() {
         (700, 1000, 0, 700)
     );
 }
+
+/// `anerf train <config>` applies its flags over the file, and `--set` over the flags.
+#[test]
+fn train_flags_override_a_config_file_and_set_overrides_the_flags() {
+    use anerf_train::cli::{Cli, Command};
+    use clap::Parser;
+    let file = configs_dir().join("zju_mocap/313.toml");
+    let cli = Cli::parse_from([
+        "anerf",
+        "train",
+        file.to_str().unwrap(),
+        "--preset",
+        "tiny",
+        "--iterations",
+        "7",
+        "--train-views",
+        "1,3",
+        "--train-frames",
+        "0:10",
+        "--novel-pose-frames",
+        "10:20:5",
+        "--set",
+        "train.iterations=9",
+    ]);
+    let Command::Train(args) = cli.command else {
+        panic!("parsed as another command")
+    };
+    let c = anerf_train::commands::train_config(&args).unwrap();
+    let file_config = config::load(&file, &[]).unwrap();
+    assert_ne!(file_config.model, c.model, "the file's preset is not tiny");
+    assert_eq!(c.model, anerf_core::model::ModelPreset::Tiny.config());
+    assert_eq!(c.train.iterations, 9);
+    assert_eq!(c.dataset.train_views, vec![1, 3]);
+    assert_eq!(
+        c.dataset.split().train_frames.frames(),
+        (0..10).collect::<Vec<_>>()
+    );
+    assert_eq!(c.dataset.split().novel_pose_frames.frames(), vec![10, 15]);
+    let bad = Cli::parse_from([
+        "anerf",
+        "train",
+        file.to_str().unwrap(),
+        "--train-frames",
+        "9:3",
+    ]);
+    let Command::Train(args) = bad.command else {
+        panic!("parsed as another command")
+    };
+    let err = format!(
+        "{:#}",
+        anerf_train::commands::train_config(&args).unwrap_err()
+    );
+    assert!(err.contains("--train-frames"), "{err}");
+}

@@ -5,8 +5,8 @@ use burn::prelude::*;
 use burn::tensor::IndexingUpdateOp;
 
 use super::blend::BlendWeightField;
-use super::encoding::PositionalEncoding;
 use super::nerf::CanonicalNerf;
+use super::occupancy::OccupancyGrid;
 use super::{ConsistencyLoss, ModelConfig};
 use crate::body::VolumeTensor;
 use crate::geometry::skinning::{world_to_pose, BoneMatrices};
@@ -64,8 +64,11 @@ pub struct RenderOutput {
     pub depth: Tensor<1>,
     /// Observation and canonical blend weights on the surviving samples (when asked for).
     pub consistency: Option<ConsistencyTerms>,
-    /// Samples evaluated by the MLPs / all samples, for statistics.
+    /// Samples that survived culling (they reach the blend-weight field), samples among them in occupied
+    /// canonical cells (they reach the canonical NeRF; all of them without an occupancy grid), and all
+    /// samples, for statistics.
     pub surviving_samples: usize,
+    pub occupied_samples: usize,
     pub total_samples: usize,
 }
 
@@ -116,6 +119,9 @@ pub struct AnimatableNerf {
     pub novel_blend: Option<BlendWeightField>,
     #[module(skip)]
     config: ModelConfig,
+    /// Occupied cells of the canonical box, when the config asks for a grid and it has been built.
+    #[module(skip)]
+    occupancy: Option<OccupancyGrid>,
 }
 
 impl AnimatableNerf {
@@ -126,6 +132,35 @@ impl AnimatableNerf {
             blend: BlendWeightField::new(config, sizes.training_frames + 1, sizes.joints, device),
             novel_blend: None,
             config: config.clone(),
+            occupancy: None,
+        }
+    }
+
+    /// The occupancy grid, once built.
+    pub fn occupancy(&self) -> Option<&OccupancyGrid> {
+        self.occupancy.as_ref()
+    }
+
+    /// Replaces the occupancy grid (one read from a checkpoint).
+    pub fn set_occupancy(&mut self, grid: Option<OccupancyGrid>) {
+        self.occupancy = grid;
+    }
+
+    /// Builds the occupancy grid from the current density (when the config has `occupancy`).
+    pub fn rebuild_occupancy(&mut self, canonical: &CanonicalInputs) {
+        if let Some(config) = self.config.occupancy {
+            let device = self.nerf.appearance.weight.device();
+            let grid = OccupancyGrid::build(&config, canonical.bounds, &device, |p| {
+                self.canonical_density(p, canonical)
+            });
+            self.occupancy = Some(grid);
+        }
+    }
+
+    /// The training loop's hook after step `step` (counted from 1): rebuilds the grid on the config's schedule.
+    pub fn update_occupancy(&mut self, canonical: &CanonicalInputs, step: usize) {
+        if self.config.occupancy.is_some_and(|c| c.rebuilds_at(step)) {
+            self.rebuild_occupancy(canonical);
         }
     }
 
@@ -157,18 +192,6 @@ impl AnimatableNerf {
         }
     }
 
-    fn xyz_encoding(&self) -> PositionalEncoding {
-        PositionalEncoding {
-            frequencies: self.config.xyz_frequencies,
-        }
-    }
-
-    fn dir_encoding(&self) -> PositionalEncoding {
-        PositionalEncoding {
-            frequencies: self.config.dir_frequencies,
-        }
-    }
-
     /// The field and row that give frame weights for `code`.
     fn frame_field(&self, code: FrameCode) -> (&BlendWeightField, usize) {
         match code {
@@ -188,8 +211,7 @@ impl AnimatableNerf {
         if !self.config.neural_blend_weights {
             return self.blend.prior_only(prior);
         }
-        self.blend
-            .forward(self.xyz_encoding().encode(points), 0, prior)
+        self.blend.forward(points, 0, prior)
     }
 
     /// Frame blend weights `w_i` at pose-space points `[M, 3]` with their prior `[M, K]`.
@@ -198,15 +220,13 @@ impl AnimatableNerf {
         if !self.config.neural_blend_weights {
             return field.prior_only(prior);
         }
-        field.forward(self.xyz_encoding().encode(points), row, prior)
+        field.forward(points, row, prior)
     }
 
     /// Raw canonical density at canonical points `[M, 3]`, zero outside the canonical box.
     pub fn canonical_density(&self, points: Tensor<2>, canonical: &CanonicalInputs) -> Tensor<2> {
         let inside = inside_box(points.clone(), &canonical.bounds);
-        self.nerf
-            .density(self.xyz_encoding().encode(points))
-            .mask_fill(inside.bool_not(), 0.0)
+        self.nerf.density(points).mask_fill(inside.bool_not(), 0.0)
     }
 
     /// Warps pose-space samples `[M, 3]` (prior weights `[M, K]`, world view directions `[M, 3]`) to canonical
@@ -219,14 +239,35 @@ impl AnimatableNerf {
         frame: &FrameInputs,
         canonical: &CanonicalInputs,
     ) -> ShadedSamples {
+        let (weights, canonical_points) = self.warp(points, prior, frame);
+        self.radiance(weights, canonical_points, dirs, frame, canonical)
+    }
+
+    /// Observation weights `[M, K]` and canonical positions `[M, 3]` of pose-space samples `[M, 3]`.
+    fn warp(
+        &self,
+        points: Tensor<2>,
+        prior: Tensor<2>,
+        frame: &FrameInputs,
+    ) -> (Tensor<2>, Tensor<2>) {
         let weights = self.frame_weights(points.clone(), prior, frame.code);
         let canonical_points = frame.bones.inverse(points, weights.clone());
+        (weights, canonical_points)
+    }
+
+    /// The canonical NeRF at warped samples.
+    fn radiance(
+        &self,
+        weights: Tensor<2>,
+        canonical_points: Tensor<2>,
+        dirs: Tensor<2>,
+        frame: &FrameInputs,
+        canonical: &CanonicalInputs,
+    ) -> ShadedSamples {
         let inside = inside_box(canonical_points.clone(), &canonical.bounds);
-        let radiance = self.nerf.forward(
-            self.xyz_encoding().encode(canonical_points.clone()),
-            self.dir_encoding().encode(dirs),
-            frame.appearance,
-        );
+        let radiance = self
+            .nerf
+            .forward(canonical_points.clone(), dirs, frame.appearance);
         ShadedSamples {
             density: radiance.density.mask_fill(inside.clone().bool_not(), 0.0),
             rgb: radiance.rgb,
@@ -241,7 +282,9 @@ impl AnimatableNerf {
     ///
     /// Samples whose distance to the body (the frame volume's last channel) is at least `cull_distance` never
     /// reach an MLP: the survivors are gathered, shaded and scattered back; culled samples have zero density.
-    /// The sample closest to the body is always kept, so the MLP batch is never empty.
+    /// The sample closest to the body is always kept, so the MLP batch is never empty. With an occupancy grid
+    /// ([`Self::rebuild_occupancy`]), survivors whose warped position falls in an empty canonical cell skip the
+    /// canonical NeRF (and the canonical blend weights) too: one more read-back of their canonical positions.
     pub fn render(
         &self,
         rays: &RayBatch,
@@ -265,18 +308,39 @@ impl AnimatableNerf {
             .unsqueeze_dim::<3>(1)
             .repeat_dim(1, s)
             .reshape([n, 3]);
-        let prior = frame.volume.sample(points.clone());
-
-        let keep = surviving_indices(&to_host(prior.distance.clone()), self.config.cull_distance);
+        // Culling reads only the distance channel for every sample; the prior weights are read for the
+        // survivors alone.
+        let distance = frame.volume.sample_distance(points.clone());
+        let keep = surviving_indices(&to_host(distance), self.config.cull_distance);
         let m = keep.len();
-        let index = Tensor::<1, Int>::from_data(TensorData::new(keep, [m]), &device);
-        let shaded = self.shade(
-            points.select(0, index.clone()),
-            prior.weights.select(0, index.clone()),
-            dirs.select(0, index.clone()),
-            frame,
-            canonical,
-        );
+        let index = Tensor::<1, Int>::from_data(TensorData::new(keep.clone(), [m]), &device);
+        let points = points.select(0, index.clone());
+        let dirs = dirs.select(0, index.clone());
+        let prior = frame.volume.sample(points.clone()).weights;
+        let (weights, canonical_points) = self.warp(points, prior, frame);
+        let (index, weights, canonical_points, dirs) = match &self.occupancy {
+            Some(grid) => {
+                let mut rows = grid.occupied_rows(&to_host(canonical_points.clone()));
+                if rows.is_empty() {
+                    rows.push(0);
+                }
+                let global: Vec<i64> = rows.iter().map(|&j| keep[j as usize]).collect();
+                let local =
+                    Tensor::<1, Int>::from_data(TensorData::new(rows, [global.len()]), &device);
+                (
+                    Tensor::<1, Int>::from_data(
+                        TensorData::new(global.clone(), [global.len()]),
+                        &device,
+                    ),
+                    weights.select(0, local.clone()),
+                    canonical_points.select(0, local.clone()),
+                    dirs.select(0, local),
+                )
+            }
+            None => (index, weights, canonical_points, dirs),
+        };
+        let occupied = index.dims()[0];
+        let shaded = self.radiance(weights, canonical_points, dirs, frame, canonical);
 
         let consistency = with_consistency.then(|| ConsistencyTerms {
             observed: shaded.weights.clone(),
@@ -302,6 +366,7 @@ impl AnimatableNerf {
             depth: out.depth,
             consistency,
             surviving_samples: m,
+            occupied_samples: occupied,
             total_samples: n,
         }
     }

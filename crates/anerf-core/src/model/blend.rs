@@ -5,9 +5,10 @@ use burn::nn::{Embedding, EmbeddingConfig, Linear};
 use burn::prelude::*;
 use burn::tensor::activation::softmax;
 
-use super::encoding::PositionalEncoding;
+use super::encoding::{encode_points, point_input, PositionalEncoding};
+use super::hash_grid::HashGrid;
 use super::mlp::{torch_linear, SkipMlp, SkipMlpConfig};
-use super::{BlendParameterisation, ModelConfig};
+use super::{BlendParameterisation, ModelConfig, PointEncoding};
 
 /// `w(x) = combine(F_Δw(γ(x), ψ), w^s(x))` for one table of latent codes ψ.
 ///
@@ -16,6 +17,10 @@ use super::{BlendParameterisation, ModelConfig};
 /// rows are the novel-pose frames.
 #[derive(Module, Debug)]
 pub struct BlendWeightField {
+    /// The hash grid over pose and canonical space ([`PointEncoding::HashGrid`]); `None` for frequencies.
+    grid: Option<HashGrid>,
+    #[module(skip)]
+    xyz: PositionalEncoding,
     trunk: SkipMlp,
     head: Linear,
     /// Latent codes ψ.
@@ -27,10 +32,14 @@ pub struct BlendWeightField {
 impl BlendWeightField {
     /// A freshly initialised field with `codes` latent rows and `joints` outputs.
     pub fn new(config: &ModelConfig, codes: usize, joints: usize, device: &Device) -> Self {
-        let xyz = PositionalEncoding {
+        let xyz_pe = PositionalEncoding {
             frequencies: config.xyz_frequencies,
-        }
-        .output_dim();
+        };
+        let grid_config = match &config.encoding {
+            PointEncoding::HashGrid { blend, .. } => Some(blend),
+            PointEncoding::Frequency => None,
+        };
+        let (grid, xyz) = point_input(grid_config, xyz_pe, device);
         let trunk = SkipMlpConfig {
             input: xyz,
             conditioning: config.blend_code_dim,
@@ -39,6 +48,8 @@ impl BlendWeightField {
             skip: config.skip,
         };
         Self {
+            grid,
+            xyz: xyz_pe,
             trunk: trunk.init(device),
             head: torch_linear(config.width, joints, device),
             codes: EmbeddingConfig::new(codes.max(1), config.blend_code_dim).init(device),
@@ -46,20 +57,16 @@ impl BlendWeightField {
         }
     }
 
-    /// The MLP output `F` (`[N, K]`) for encoded points `[N, xyz_dim]` and code row `code`.
-    pub fn residual(&self, encoded_points: Tensor<2>, code: usize) -> Tensor<2> {
+    /// The MLP output `F` (`[N, K]`) at points `[N, 3]` (metres, pose or canonical space) for code row `code`.
+    pub fn residual(&self, points: Tensor<2>, code: usize) -> Tensor<2> {
         let psi = self.codes.weight.val().narrow(0, code, 1);
-        self.head
-            .forward(self.trunk.forward(encoded_points, Some(psi)))
+        let encoded = encode_points(self.grid.as_ref(), self.xyz, points);
+        self.head.forward(self.trunk.forward(encoded, Some(psi)))
     }
 
-    /// Blend weights `[N, K]` (rows sum to 1) from encoded points, code row `code` and prior weights `[N, K]`.
-    pub fn forward(&self, encoded_points: Tensor<2>, code: usize, prior: Tensor<2>) -> Tensor<2> {
-        combine(
-            self.parameterisation,
-            self.residual(encoded_points, code),
-            prior,
-        )
+    /// Blend weights `[N, K]` (rows sum to 1) at points `[N, 3]`, for code row `code` and prior weights `[N, K]`.
+    pub fn forward(&self, points: Tensor<2>, code: usize, prior: Tensor<2>) -> Tensor<2> {
+        combine(self.parameterisation, self.residual(points, code), prior)
     }
 
     /// The weights with the residual forced to zero: the normalised prior under this parameterisation.

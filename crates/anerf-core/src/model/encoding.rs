@@ -2,6 +2,8 @@
 
 use burn::prelude::*;
 
+use super::hash_grid::{HashGrid, HashGridConfig};
+
 /// `γ(x) = [x, sin(2⁰x), cos(2⁰x), sin(2¹x), cos(2¹x), …, sin(2^{L−1}x), cos(2^{L−1}x)]` for `[N, 3]` inputs,
 /// log-sampled frequencies without a π factor, input included (the reference layout): `3 + 6L` outputs.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -25,6 +27,30 @@ impl PositionalEncoding {
             parts.push(scaled.cos());
         }
         Tensor::cat(parts, 1)
+    }
+}
+
+/// The points' input to a field: its own hash grid when it has one, else the positional encoding `pe`.
+pub fn encode_points(
+    grid: Option<&HashGrid>,
+    pe: PositionalEncoding,
+    points: Tensor<2>,
+) -> Tensor<2> {
+    match grid {
+        Some(g) => g.forward(points),
+        None => pe.encode(points),
+    }
+}
+
+/// A field's hash grid (when `config` asks for one) and the width of its point input.
+pub fn point_input(
+    config: Option<&HashGridConfig>,
+    pe: PositionalEncoding,
+    device: &Device,
+) -> (Option<HashGrid>, usize) {
+    match config {
+        Some(c) => (Some(HashGrid::new(c, device)), c.output_dim()),
+        None => (None, pe.output_dim()),
     }
 }
 

@@ -43,6 +43,34 @@ fn uniform_linear(d_in: usize, d_out: usize, fan_in: usize, bias: bool, device: 
         .init(device)
 }
 
+/// `layer` applied to the concatenation of `parts` along dimension 1, without building it: `Σ_i x_i · W_i + b`
+/// where `W_i` are the rows of the weight that meet part `i`. Saves copying every activation into a wider
+/// tensor (and slicing its gradient apart again); a part with one row (a per-batch code) is broadcast.
+pub fn linear_over_parts(layer: &Linear, parts: &[Tensor<2>]) -> Tensor<2> {
+    let weight = layer.weight.val();
+    let mut row = 0;
+    let mut out: Option<Tensor<2>> = None;
+    for part in parts {
+        let [_, d] = part.dims();
+        let z = part.clone().matmul(weight.clone().narrow(0, row, d));
+        row += d;
+        out = Some(match out {
+            Some(o) => o + z,
+            None => z,
+        });
+    }
+    assert_eq!(
+        row,
+        weight.dims()[0],
+        "linear_over_parts: the parts' widths must add up to the layer's input width"
+    );
+    let out = out.expect("at least one part");
+    match &layer.bias {
+        Some(b) => out + b.val().unsqueeze(),
+        None => out,
+    }
+}
+
 /// A `Linear` initialised as PyTorch's `nn.Linear`/`Conv1d(k=1)`: weights and bias `U(±1/√d_in)`.
 pub fn torch_linear(d_in: usize, d_out: usize, device: &Device) -> Linear {
     uniform_linear(d_in, d_out, d_in, true, device)
@@ -106,16 +134,18 @@ impl SkipMlp {
         let mut h = input.clone();
         for (i, layer) in self.layers.iter().enumerate() {
             let joins_input = i == 0 || self.skip.is_some_and(|s| i == s + 1);
-            let mut z = layer.forward(h);
+            // The skip layer sees [h, input]: computed part by part instead of concatenated.
+            let mut z = if i > 0 && joins_input {
+                linear_over_parts(layer, &[h, input.clone()])
+            } else {
+                layer.forward(h)
+            };
             if joins_input {
                 if let Some(p) = projected.next() {
                     z = z + p;
                 }
             }
             h = relu(z);
-            if self.skip == Some(i) {
-                h = Tensor::cat(vec![h, input.clone()], 1);
-            }
         }
         h
     }
@@ -161,6 +191,20 @@ mod tests {
         h = relu(mlp.layers[3].forward(h));
         for (a, b) in got.iter().zip(to_host(h)) {
             assert!((a - b).abs() < 1e-5);
+        }
+    }
+
+    /// Parts of the input (one of them a broadcast row) give the layer's output on their concatenation.
+    #[test]
+    fn linear_over_parts_equals_the_layer_on_the_concatenation() {
+        let device = cpu_device();
+        let layer = torch_linear(7, 4, &device);
+        let a = Tensor::<2>::random([5, 3], Distribution::Normal(0.0, 1.0), &device);
+        let b = Tensor::<2>::random([1, 4], Distribution::Normal(0.0, 1.0), &device);
+        let got = to_host(linear_over_parts(&layer, &[a.clone(), b.clone()]));
+        let expect = to_host(layer.forward(Tensor::cat(vec![a, b.repeat_dim(0, 5)], 1)));
+        for (g, e) in got.iter().zip(&expect) {
+            assert!((g - e).abs() < 1e-5, "{g} vs {e}");
         }
     }
 

@@ -4,8 +4,10 @@ pub mod animatable;
 pub mod blend;
 pub mod config;
 pub mod encoding;
+pub mod hash_grid;
 pub mod mlp;
 pub mod nerf;
+pub mod occupancy;
 pub mod stage2;
 
 pub use animatable::{
@@ -13,8 +15,9 @@ pub use animatable::{
     RenderOutput, ShadedSamples,
 };
 pub use blend::BlendWeightField;
-pub use config::{BlendParameterisation, ConsistencyLoss, ModelConfig, ModelPreset};
+pub use config::{BlendParameterisation, ConsistencyLoss, ModelConfig, ModelPreset, PointEncoding};
 pub use encoding::PositionalEncoding;
 pub use nerf::CanonicalNerf;
+pub use occupancy::{OccupancyConfig, OccupancyGrid};
 #[cfg(test)]
 mod tests;

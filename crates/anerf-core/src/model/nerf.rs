@@ -4,15 +4,22 @@ use burn::nn::{Embedding, EmbeddingConfig, Linear};
 use burn::prelude::*;
 use burn::tensor::activation::{relu, sigmoid};
 
-use super::encoding::PositionalEncoding;
-use super::mlp::{torch_linear, SkipMlp, SkipMlpConfig};
-use super::ModelConfig;
+use super::encoding::{encode_points, point_input, PositionalEncoding};
+use super::hash_grid::HashGrid;
+use super::mlp::{linear_over_parts, torch_linear, SkipMlp, SkipMlpConfig};
+use super::{ModelConfig, PointEncoding};
 
-/// Density and colour in canonical space: trunk on `γ(x_can)` → raw density (no activation); a feature
-/// (linear) joined with the frame's appearance code `ℓ_i` (linear) and `γ(d)` → ReLU layer of width/2 →
-/// sigmoid colour. Only the colour sees `ℓ_i`.
+/// Density and colour in canonical space: trunk on `γ(x_can)` (or the field's hash grid) → raw density (no
+/// activation); a feature (linear) joined with the frame's appearance code `ℓ_i` (linear) and `γ(d)` → ReLU
+/// layer of width/2 → sigmoid colour. Only the colour sees `ℓ_i`.
 #[derive(Module, Debug)]
 pub struct CanonicalNerf {
+    /// The hash grid over canonical space ([`PointEncoding::HashGrid`]); `None` for frequencies.
+    grid: Option<HashGrid>,
+    #[module(skip)]
+    xyz: PositionalEncoding,
+    #[module(skip)]
+    dir: PositionalEncoding,
     trunk: SkipMlp,
     density: Linear,
     feature: Linear,
@@ -35,14 +42,18 @@ pub struct RadianceSample {
 impl CanonicalNerf {
     /// A freshly initialised field with `appearance_codes` rows of ℓ.
     pub fn new(config: &ModelConfig, appearance_codes: usize, device: &Device) -> Self {
-        let xyz = PositionalEncoding {
+        let xyz_pe = PositionalEncoding {
             frequencies: config.xyz_frequencies,
-        }
-        .output_dim();
-        let dir = PositionalEncoding {
+        };
+        let dir_pe = PositionalEncoding {
             frequencies: config.dir_frequencies,
-        }
-        .output_dim();
+        };
+        let grid_config = match &config.encoding {
+            PointEncoding::HashGrid { nerf, .. } => Some(nerf),
+            PointEncoding::Frequency => None,
+        };
+        let (grid, xyz) = point_input(grid_config, xyz_pe, device);
+        let dir = dir_pe.output_dim();
         let w = config.width;
         let trunk = SkipMlpConfig {
             input: xyz,
@@ -52,6 +63,9 @@ impl CanonicalNerf {
             skip: config.skip,
         };
         Self {
+            grid,
+            xyz: xyz_pe,
+            dir: dir_pe,
             trunk: trunk.init(device),
             density: torch_linear(w, 1, device),
             feature: torch_linear(w, w, device),
@@ -63,33 +77,31 @@ impl CanonicalNerf {
         }
     }
 
-    /// Raw density only, for points `[N, xyz_dim]` already encoded (mesh extraction, stage 2 masks).
-    pub fn density(&self, encoded_points: Tensor<2>) -> Tensor<2> {
-        self.density
-            .forward(self.trunk.forward(encoded_points, None))
+    fn encode(&self, points: Tensor<2>) -> Tensor<2> {
+        encode_points(self.grid.as_ref(), self.xyz, points)
     }
 
-    /// Density and colour for encoded points `[N, xyz_dim]`, encoded view directions `[N, dir_dim]`, and the
-    /// appearance code of row `appearance_index`.
+    /// Raw density only, at canonical points `[N, 3]` (metres): mesh extraction, occupancy, stage 2 masks.
+    pub fn density(&self, points: Tensor<2>) -> Tensor<2> {
+        self.density
+            .forward(self.trunk.forward(self.encode(points), None))
+    }
+
+    /// Density and colour at canonical points `[N, 3]` (metres) seen along unit view directions `[N, 3]`
+    /// (world space), with the appearance code of row `appearance_index`.
     pub fn forward(
         &self,
-        encoded_points: Tensor<2>,
-        encoded_dirs: Tensor<2>,
+        points: Tensor<2>,
+        dirs: Tensor<2>,
         appearance_index: usize,
     ) -> RadianceSample {
-        let [n, _] = encoded_points.dims();
-        let h = self.trunk.forward(encoded_points, None);
+        let encoded_dirs = self.dir.encode(dirs);
+        let h = self.trunk.forward(self.encode(points), None);
         let density = self.density.forward(h.clone());
-        let code = self
-            .appearance
-            .weight
-            .val()
-            .narrow(0, appearance_index, 1)
-            .repeat_dim(0, n);
-        let f = self
-            .appearance_fc
-            .forward(Tensor::cat(vec![self.feature.forward(h), code], 1));
-        let v = relu(self.view_fc.forward(Tensor::cat(vec![f, encoded_dirs], 1)));
+        // The code is one row for all points: its part of `appearance_fc` is computed once and broadcast.
+        let code = self.appearance.weight.val().narrow(0, appearance_index, 1);
+        let f = linear_over_parts(&self.appearance_fc, &[self.feature.forward(h), code]);
+        let v = relu(linear_over_parts(&self.view_fc, &[f, encoded_dirs]));
         RadianceSample {
             density,
             rgb: sigmoid(self.rgb.forward(v)),

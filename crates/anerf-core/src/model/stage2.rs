@@ -36,12 +36,13 @@ impl AnimatableNerf {
         let kind = self.config().consistency;
         let device = pose_points.device();
 
-        let prior = frame.volume.sample(pose_points.clone());
-        let keep = surviving_indices(&to_host(prior.distance), self.config().cull_distance);
+        let distance = frame.volume.sample_distance(pose_points.clone());
+        let keep = surviving_indices(&to_host(distance), self.config().cull_distance);
         let m = keep.len();
         let index = Tensor::<1, Int>::from_data(TensorData::new(keep, [m]), &device);
-        let points = pose_points.select(0, index.clone());
-        let w_new = self.frame_weights(points.clone(), prior.weights.select(0, index), frame.code);
+        let points = pose_points.select(0, index);
+        let prior = frame.volume.sample(points.clone()).weights;
+        let w_new = self.frame_weights(points.clone(), prior, frame.code);
         let warped = frame.bones.inverse(points, w_new.clone());
         let w_can = self.canonical_weights(warped.clone(), canonical);
         // Density is zero outside the canonical box, so the mask keeps only points inside it (and the densest).

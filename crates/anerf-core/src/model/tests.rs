@@ -14,7 +14,7 @@ use crate::geometry::{
     inverse_lbs_point, Aabb, Camera, CanonicalPose, GlobalTransform, Pose, Skeleton,
 };
 use crate::render::{color_mse, composite, stratified_depths, HostRays, RayBatch};
-use crate::tensor::to_host;
+use crate::tensor::{from_rows, to_host};
 use crate::{FrameId, ViewId};
 
 const JOINTS: [[f32; 3]; 4] = [
@@ -270,15 +270,12 @@ fn without_residual_the_warp_is_inverse_lbs_with_the_prior_weights() {
     }
 }
 
-#[test]
-fn culling_matches_evaluating_every_sample_and_zeroing_the_far_ones() {
-    let device = cpu_device();
-    device.seed(3);
-    let s = scene(&device, FrameCode::Training(2));
-    let model = tiny_model(&device);
-    let culled = model.render(&s.rays, &s.frame, &s.canonical, None, false);
-
-    // Reference: shade all samples, then zero the density of those ≥ cull_distance from the body.
+/// Every sample of the scene's rays shaded without culling: the samples, which of them lie at least
+/// `cull_distance` from the body (`[R·S, 1]`), and the depths `[R, S]`.
+fn shade_every_sample(
+    model: &AnimatableNerf,
+    s: &Scene,
+) -> (ShadedSamples, Tensor<2, Bool>, Tensor<2>) {
     let samples = model.config().samples_per_ray;
     let r = s.rays.len();
     let depths = stratified_depths(s.rays.near.clone(), s.rays.far.clone(), samples, None);
@@ -299,6 +296,20 @@ fn culling_matches_evaluating_every_sample_and_zeroing_the_far_ones() {
         .clone()
         .greater_equal_elem(model.config().cull_distance);
     let shaded = model.shade(pose, prior.weights, dirs, &s.frame, &s.canonical);
+    (shaded, far, depths)
+}
+
+#[test]
+fn culling_matches_evaluating_every_sample_and_zeroing_the_far_ones() {
+    let device = cpu_device();
+    device.seed(3);
+    let s = scene(&device, FrameCode::Training(2));
+    let model = tiny_model(&device);
+    let culled = model.render(&s.rays, &s.frame, &s.canonical, None, false);
+
+    // Reference: shade all samples, then zero the density of those ≥ cull_distance from the body.
+    let (samples, r) = (model.config().samples_per_ray, s.rays.len());
+    let (shaded, far, depths) = shade_every_sample(&model, &s);
     let density = shaded.density.mask_fill(far, 0.0).reshape([r, samples]);
     let all = composite(density, shaded.rgb.reshape([r, samples, 3]), depths);
 
@@ -415,5 +426,68 @@ fn flex_and_ndarray_render_the_same_image() {
     assert!(
         a.iter().zip(&b).all(|(x, y)| (x - y).abs() < 1e-5),
         "{a:?}\n{b:?}"
+    );
+}
+
+/// With an occupancy grid, samples whose canonical position falls in an empty cell skip the canonical NeRF:
+/// the image equals shading every surviving sample and zeroing the density of those in empty cells.
+#[test]
+fn occupancy_grid_matches_zeroing_samples_in_empty_cells() {
+    use crate::model::{OccupancyConfig, OccupancyGrid};
+    let device = cpu_device();
+    device.seed(4);
+    let s = scene(&device, FrameCode::Training(1));
+    let mut model = tiny_model(&device);
+    // An analytic grid: occupied within 0.35 m of a point of the canonical body (about half its box).
+    let centre = Vec3::new(0.0, 0.3, 0.0);
+    let config = OccupancyConfig {
+        resolution: 16,
+        density_threshold: 0.5,
+        update_every: 1,
+        warmup_steps: 0,
+    };
+    let grid = OccupancyGrid::build(&config, s.canonical.bounds, &device, |p: Tensor<2>| {
+        let c = Tensor::<2>::from_floats([centre.to_array()], &p.device());
+        (p - c)
+            .powi_scalar(2)
+            .sum_dim(1)
+            .sqrt()
+            .lower_elem(0.35)
+            .float()
+    });
+    let fraction = grid.occupied_fraction();
+    assert!(fraction > 0.1 && fraction < 0.9, "{fraction}");
+    model.set_occupancy(Some(grid.clone()));
+    let skipped = model.render(&s.rays, &s.frame, &s.canonical, None, false);
+    model.set_occupancy(None);
+    let full = model.render(&s.rays, &s.frame, &s.canonical, None, false);
+    assert!(skipped.occupied_samples < full.occupied_samples);
+    assert_eq!(full.occupied_samples, full.surviving_samples);
+
+    // Reference: every sample shaded, density zeroed where culled or where the warped point's cell is empty.
+    let (samples, r) = (model.config().samples_per_ray, s.rays.len());
+    let (shaded, far, depths) = shade_every_sample(&model, &s);
+    let far = to_host(far.float());
+    let canonical = to_host(shaded.canonical_points.clone());
+    let keep: Vec<f32> = canonical
+        .chunks_exact(3)
+        .zip(&far)
+        .map(|(p, f)| (*f == 0.0 && grid.contains(Vec3::from_slice(p))) as u8 as f32)
+        .collect();
+    let keep = from_rows(&keep, r * samples, 1, &device);
+    let density = (shaded.density * keep).reshape([r, samples]);
+    let reference = composite(density, shaded.rgb.reshape([r, samples, 3]), depths);
+    let (a, b, c) = (
+        to_host(skipped.rgb),
+        to_host(reference.rgb),
+        to_host(full.rgb),
+    );
+    assert!(
+        a.iter().zip(&b).all(|(x, y)| (x - y).abs() < 1e-5),
+        "{a:?}\n{b:?}"
+    );
+    assert!(
+        a.iter().zip(&c).any(|(x, y)| (x - y).abs() > 1e-3),
+        "the grid changed nothing: the test would not see a mistake"
     );
 }

@@ -1,0 +1,203 @@
+//! The hash-grid encoding as a Burn backend extension: the flex backend runs the CPU [`super::kernels`];
+//! the autodiff backend wraps them with a hand-written backward pass (table gradient and point gradient).
+//! Other backends use [`super::encode_reference`] (see [`has_kernels`]).
+
+use burn::backend::autodiff::checkpoint::base::Checkpointer;
+use burn::backend::autodiff::checkpoint::strategy::CheckpointStrategy;
+use burn::backend::autodiff::grads::Gradients;
+use burn::backend::autodiff::ops::{Backward, Ops, OpsKind};
+use burn::backend::autodiff::Autodiff;
+use burn::backend::flex::{Flex, FlexTensor, Layout};
+use burn::backend::tensor::FloatTensor;
+use burn::backend::{backend_extension, Dispatch, DispatchDevice};
+use burn::backend::{AutodiffBackend, TensorMetadata};
+use burn::prelude::*;
+use burn::tensor::{Bytes, DType, Shape};
+
+use super::{kernels, GridSpec};
+
+/// The encoding's primitive operations (all tensors `f32`, row-major; see [`super::kernels`] for shapes).
+#[backend_extension(Flex, Autodiff)]
+pub trait HashGridBackend: burn::backend::Backend {
+    /// `[N, 3]` points and the `[L·T, F]` table → `[N, L·F]` features.
+    fn hash_grid_encode(
+        points: FloatTensor<Self>,
+        table: FloatTensor<Self>,
+        spec: GridSpec,
+    ) -> FloatTensor<Self>;
+
+    /// The table's gradient `[L·T, F]` from the points and the output gradient `[N, L·F]`.
+    fn hash_grid_table_grad(
+        points: FloatTensor<Self>,
+        grad: FloatTensor<Self>,
+        spec: GridSpec,
+    ) -> FloatTensor<Self>;
+
+    /// The points' gradient `[N, 3]` from the points, the table and the output gradient.
+    fn hash_grid_points_grad(
+        points: FloatTensor<Self>,
+        table: FloatTensor<Self>,
+        grad: FloatTensor<Self>,
+        spec: GridSpec,
+    ) -> FloatTensor<Self>;
+}
+
+/// Whether `device` runs the hand-written kernels (the flex backend, with or without autodiff).
+pub fn has_kernels(device: &Device) -> bool {
+    matches!(
+        device.as_dispatch().clone().inner(),
+        DispatchDevice::Flex(_)
+    )
+}
+
+/// The encoding through the extension; `points` and `table` must live on a device where [`has_kernels`].
+pub fn encode(points: Tensor<2>, table: Tensor<2>, spec: &GridSpec) -> Tensor<2> {
+    Tensor::from_dispatch(<Dispatch as HashGridBackend>::hash_grid_encode(
+        points.into_dispatch(),
+        table.into_dispatch(),
+        spec.clone(),
+    ))
+}
+
+/// A contiguous `f32` view of a flex tensor (copying only when it is strided).
+fn values(t: &FlexTensor) -> std::borrow::Cow<'_, [f32]> {
+    assert_eq!(
+        t.dtype(),
+        DType::F32,
+        "the hash-grid kernels take f32 tensors"
+    );
+    match t.as_slice::<f32>() {
+        Some(s) => std::borrow::Cow::Borrowed(s),
+        None => std::borrow::Cow::Owned(
+            t.to_contiguous()
+                .as_slice::<f32>()
+                .expect("contiguous")
+                .to_vec(),
+        ),
+    }
+}
+
+fn flex_tensor(data: Vec<f32>, dims: [usize; 2]) -> FlexTensor {
+    FlexTensor::new(
+        Bytes::from_elems(data),
+        Layout::contiguous(Shape::new(dims)),
+        DType::F32,
+    )
+}
+
+fn rows(t: &FlexTensor) -> usize {
+    t.shape().dims::<2>()[0]
+}
+
+impl HashGridBackend for Flex {
+    fn hash_grid_encode(points: FlexTensor, table: FlexTensor, spec: GridSpec) -> FlexTensor {
+        let n = rows(&points);
+        assert_eq!(
+            table.shape().dims::<2>(),
+            [spec.table_rows(), spec.features],
+            "hash grid table"
+        );
+        let mut out = vec![0.0; n * spec.output_dim()];
+        kernels::encode(&values(&points), &values(&table), &spec, &mut out);
+        flex_tensor(out, [n, spec.output_dim()])
+    }
+
+    fn hash_grid_table_grad(points: FlexTensor, grad: FlexTensor, spec: GridSpec) -> FlexTensor {
+        let mut out = vec![0.0; spec.table_rows() * spec.features];
+        kernels::table_grad(&values(&points), &values(&grad), &spec, &mut out);
+        flex_tensor(out, [spec.table_rows(), spec.features])
+    }
+
+    fn hash_grid_points_grad(
+        points: FlexTensor,
+        table: FlexTensor,
+        grad: FlexTensor,
+        spec: GridSpec,
+    ) -> FlexTensor {
+        let n = rows(&points);
+        let mut out = vec![0.0; n * 3];
+        kernels::points_grad(
+            &values(&points),
+            &values(&table),
+            &values(&grad),
+            &spec,
+            &mut out,
+        );
+        flex_tensor(out, [n, 3])
+    }
+}
+
+/// The backward step of [`HashGridBackend::hash_grid_encode`]: the state holds the points, the table and
+/// the grid.
+#[derive(Debug)]
+struct EncodeBackward;
+
+impl<B: HashGridBackend> Backward<B, 2> for EncodeBackward {
+    type State = (FloatTensor<B>, FloatTensor<B>, GridSpec);
+
+    fn backward(self, ops: Ops<Self::State, 2>, grads: &mut Gradients, _: &mut Checkpointer) {
+        let [points_node, table_node] = ops.parents;
+        let grad = grads.consume::<B>(&ops.node);
+        let (points, table, spec) = ops.state;
+        if let Some(node) = table_node {
+            let g = B::hash_grid_table_grad(points.clone(), grad.clone(), spec.clone());
+            grads.register::<B>(node.id, g);
+        }
+        if let Some(node) = points_node {
+            grads.register::<B>(node.id, B::hash_grid_points_grad(points, table, grad, spec));
+        }
+    }
+}
+
+impl<B: HashGridBackend, C: CheckpointStrategy> HashGridBackend for Autodiff<B, C> {
+    fn hash_grid_encode(
+        points: FloatTensor<Self>,
+        table: FloatTensor<Self>,
+        spec: GridSpec,
+    ) -> FloatTensor<Self> {
+        match EncodeBackward
+            .prepare::<C>([points.node(), table.node()])
+            .compute_bound()
+            .stateful()
+        {
+            OpsKind::Tracked(prep) => {
+                let (p, t) = (points.into_primitive(), table.into_primitive());
+                let out = B::hash_grid_encode(p.clone(), t.clone(), spec.clone());
+                prep.finish((p, t, spec), out)
+            }
+            OpsKind::UnTracked(prep) => prep.finish(B::hash_grid_encode(
+                points.into_primitive(),
+                table.into_primitive(),
+                spec,
+            )),
+        }
+    }
+
+    // The gradients are computed on the inner backend inside the backward pass; called on autodiff
+    // tensors directly they are constants.
+    fn hash_grid_table_grad(
+        points: FloatTensor<Self>,
+        grad: FloatTensor<Self>,
+        spec: GridSpec,
+    ) -> FloatTensor<Self> {
+        Self::from_inner(B::hash_grid_table_grad(
+            points.into_primitive(),
+            grad.into_primitive(),
+            spec,
+        ))
+    }
+
+    fn hash_grid_points_grad(
+        points: FloatTensor<Self>,
+        table: FloatTensor<Self>,
+        grad: FloatTensor<Self>,
+        spec: GridSpec,
+    ) -> FloatTensor<Self> {
+        Self::from_inner(B::hash_grid_points_grad(
+            points.into_primitive(),
+            table.into_primitive(),
+            grad.into_primitive(),
+            spec,
+        ))
+    }
+}

@@ -1,0 +1,228 @@
+//! Hand-written CPU kernels of the hash-grid encoding on plain slices (rayon-parallel, no atomics): the
+//! forward gather, the table gradient (a scatter, partitioned by level so each thread owns its rows) and the
+//! gradient with respect to the points.
+//!
+//! Shapes: points `[N, 3]` (metres), table `[L·T, F]`, encodings and their gradients `[N, L·F]`, all
+//! row-major.
+
+use rayon::prelude::*;
+
+use super::GridSpec;
+
+/// Fewest points per rayon task of the per-point kernels.
+const MIN_CHUNK: usize = 256;
+
+/// One level's constants, resolved once per kernel call.
+#[derive(Debug, Clone, Copy)]
+struct Level {
+    /// Cells per axis `N`, as an integer and as a float.
+    res: u32,
+    res_f: f32,
+    /// `(N + 1)³ ≤ T`: vertices are stored densely, at `x + (N+1)·(y + (N+1)·z)`.
+    dense: bool,
+    /// Metres → cells: `N / 2h`.
+    cells_per_metre: f32,
+}
+
+impl GridSpec {
+    fn level_constants(&self) -> Vec<Level> {
+        (0..self.levels())
+            .map(|l| {
+                let res = self.resolutions[l];
+                Level {
+                    res,
+                    res_f: res as f32,
+                    dense: self.is_dense(l),
+                    cells_per_metre: res as f32 / (2.0 * self.half_extent),
+                }
+            })
+            .collect()
+    }
+
+    /// The eight corners around point `p` (metres) at `level`: their rows in the level's table (corner `c` has
+    /// bit `a` set on the high side along axis `a`), and per axis the position in the cell and whether the point
+    /// lies strictly inside the grid (outside, the position is clamped and its derivative is zero).
+    #[inline(always)]
+    fn corners(&self, level: &Level, p: &[f32]) -> Corners {
+        let mut frac = [0.0f32; 3];
+        let mut inside = [false; 3];
+        let mut base = [0u32; 3];
+        for a in 0..3 {
+            let u = (p[a] + self.half_extent) / (2.0 * self.half_extent);
+            inside[a] = u > 0.0 && u < 1.0;
+            let x = u.clamp(0.0, 1.0) * level.res_f;
+            // `x ≥ 0`, so truncation is the floor (and needs no libm call on baseline x86-64).
+            let i0 = (x as u32).min(level.res - 1);
+            base[a] = i0;
+            frac[a] = x - i0 as f32;
+        }
+        // Per axis, the two vertex terms of the row index (low, high).
+        let mask = self.table_size as u32 - 1;
+        let terms: [[u32; 2]; 3] = if level.dense {
+            let side = level.res + 1;
+            let stride = [1, side, side * side];
+            std::array::from_fn(|a| [base[a] * stride[a], (base[a] + 1) * stride[a]])
+        } else {
+            std::array::from_fn(|a| {
+                [
+                    base[a].wrapping_mul(HASH_PRIMES[a]),
+                    (base[a] + 1).wrapping_mul(HASH_PRIMES[a]),
+                ]
+            })
+        };
+        let rows = std::array::from_fn(|c| {
+            let (x, y, z) = (
+                terms[0][c & 1],
+                terms[1][(c >> 1) & 1],
+                terms[2][(c >> 2) & 1],
+            );
+            if level.dense {
+                (x + y + z) as usize
+            } else {
+                ((x ^ y ^ z) & mask) as usize
+            }
+        });
+        Corners { rows, frac, inside }
+    }
+}
+
+/// The corners of a point's cell at one level (see [`GridSpec::corners`]).
+#[derive(Debug, Clone, Copy)]
+struct Corners {
+    rows: [usize; 8],
+    frac: [f32; 3],
+    inside: [bool; 3],
+}
+
+impl Corners {
+    /// Weight of each axis side: `[1 − t, t]` per axis.
+    #[inline(always)]
+    fn sides(&self) -> [[f32; 2]; 3] {
+        self.frac.map(|t| [1.0 - t, t])
+    }
+
+    /// Trilinear weights of the eight corners.
+    #[inline(always)]
+    fn weights(&self) -> [f32; 8] {
+        let s = self.sides();
+        std::array::from_fn(|c| s[0][c & 1] * s[1][(c >> 1) & 1] * s[2][(c >> 2) & 1])
+    }
+
+    /// `∂ weight_c / ∂ t_a` for every corner and axis.
+    #[inline(always)]
+    fn weight_derivatives(&self) -> [[f32; 3]; 8] {
+        let s = self.sides();
+        let sign = |c: usize, a: usize| if (c >> a) & 1 == 1 { 1.0 } else { -1.0 };
+        std::array::from_fn(|c| {
+            let (x, y, z) = (s[0][c & 1], s[1][(c >> 1) & 1], s[2][(c >> 2) & 1]);
+            [sign(c, 0) * y * z, sign(c, 1) * x * z, sign(c, 2) * x * y]
+        })
+    }
+}
+
+/// The primes of Instant-NGP's spatial hash (the first is 1).
+pub(crate) const HASH_PRIMES: [u32; 3] = [1, 2_654_435_761, 805_459_861];
+
+/// Points per rayon task of the per-point kernels: each task walks the levels in its outer loop, so that one
+/// level's table (a few hundred KiB) stays in cache while the task's points read it at random rows. (Walking
+/// the levels inside the point loop touches every level's table per point and is several times slower.)
+fn chunk_rows(n: usize) -> usize {
+    n.div_ceil(4 * rayon::current_num_threads()).max(MIN_CHUNK)
+}
+
+/// `out[i, l·F + f] = Σ_c w_c(p_i) · table[l·T + row_c, f]`.
+pub fn encode(points: &[f32], table: &[f32], spec: &GridSpec, out: &mut [f32]) {
+    let (f, width) = (spec.features, spec.output_dim());
+    let levels = spec.level_constants();
+    let rows = chunk_rows(points.len() / 3);
+    out.par_chunks_mut(width * rows)
+        .zip(points.par_chunks(3 * rows))
+        .for_each(|(block, points)| {
+            for (l, level) in levels.iter().enumerate() {
+                let level_table = &table[l * spec.table_size * f..(l + 1) * spec.table_size * f];
+                for (row, p) in block.chunks_exact_mut(width).zip(points.chunks_exact(3)) {
+                    let feats = &mut row[l * f..(l + 1) * f];
+                    feats.fill(0.0);
+                    let corners = spec.corners(level, p);
+                    for (&r, w) in corners.rows.iter().zip(corners.weights()) {
+                        for (o, t) in feats.iter_mut().zip(&level_table[r * f..(r + 1) * f]) {
+                            *o += w * t;
+                        }
+                    }
+                }
+            }
+        });
+}
+
+/// `grad_table[l·T + row, f] = Σ_i Σ_c [row_c(p_i) = row] · w_c(p_i) · grad[i, l·F + f]`; `grad_table` must
+/// be zero on entry. Each level's rows belong to one task, so the scatter needs no atomics.
+pub fn table_grad(points: &[f32], grad: &[f32], spec: &GridSpec, grad_table: &mut [f32]) {
+    let (f, width) = (spec.features, spec.output_dim());
+    let levels = spec.level_constants();
+    grad_table
+        .par_chunks_mut(spec.table_size * f)
+        .zip(&levels)
+        .enumerate()
+        .for_each(|(l, (rows, level))| {
+            for (p, g) in points.chunks_exact(3).zip(grad.chunks_exact(width)) {
+                let g = &g[l * f..(l + 1) * f];
+                if g.iter().all(|&v| v == 0.0) {
+                    continue;
+                }
+                let corners = spec.corners(level, p);
+                for (&r, w) in corners.rows.iter().zip(corners.weights()) {
+                    for (t, gv) in rows[r * f..(r + 1) * f].iter_mut().zip(g) {
+                        *t += w * gv;
+                    }
+                }
+            }
+        });
+}
+
+/// `grad_points[i, a] = Σ_l Σ_f grad[i, l·F + f] · ∂ out[i, l·F + f] / ∂ p_{i,a}`: the trilinear weights'
+/// derivatives times the table entries, zero along an axis where the point lies outside the grid.
+pub fn points_grad(
+    points: &[f32],
+    table: &[f32],
+    grad: &[f32],
+    spec: &GridSpec,
+    grad_points: &mut [f32],
+) {
+    let (f, width) = (spec.features, spec.output_dim());
+    let levels = spec.level_constants();
+    let rows = chunk_rows(points.len() / 3);
+    grad_points
+        .par_chunks_mut(3 * rows)
+        .zip(points.par_chunks(3 * rows))
+        .zip(grad.par_chunks(width * rows))
+        .for_each(|((block, points), grad)| {
+            block.fill(0.0);
+            for (l, level) in levels.iter().enumerate() {
+                let level_table = &table[l * spec.table_size * f..(l + 1) * spec.table_size * f];
+                for ((acc, p), g) in block
+                    .chunks_exact_mut(3)
+                    .zip(points.chunks_exact(3))
+                    .zip(grad.chunks_exact(width))
+                {
+                    let g = &g[l * f..(l + 1) * f];
+                    let corners = spec.corners(level, p);
+                    let mut d = [0.0f32; 3];
+                    for (&r, dw) in corners.rows.iter().zip(corners.weight_derivatives()) {
+                        let dot: f32 = g
+                            .iter()
+                            .zip(&level_table[r * f..(r + 1) * f])
+                            .map(|(a, b)| a * b)
+                            .sum();
+                        for (d, dw) in d.iter_mut().zip(dw) {
+                            *d += dot * dw;
+                        }
+                    }
+                    for a in 0..3 {
+                        if corners.inside[a] {
+                            acc[a] += d[a] * level.cells_per_metre;
+                        }
+                    }
+                }
+            }
+        });
+}
