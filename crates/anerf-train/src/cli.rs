@@ -192,9 +192,9 @@ pub struct DemoArgs {
     /// Where the synthetic subject, cache and run go.
     #[arg(long, default_value = "demo")]
     pub out: PathBuf,
-    /// Model preset for the demo.
-    #[arg(long, default_value = "cpu")]
-    pub preset: ModelPreset,
+    /// Model preset for the demo (default: configs/demo.toml's, `fast`).
+    #[arg(long)]
+    pub preset: Option<ModelPreset>,
     #[command(flatten)]
     pub common: Common,
 }

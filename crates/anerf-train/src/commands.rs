@@ -506,7 +506,12 @@ pub const DEMO_CONFIG: &str = include_str!("../../../configs/demo.toml");
 
 /// `anerf demo`: synthesises the demo subject (once), trains both stages, evaluates novel views and novel
 /// poses, renders a turntable of a novel pose and prints a summary. Re-running continues where it stopped.
-pub fn demo(out: &Path, preset: ModelPreset, common: &Common, stop: &AtomicBool) -> Result<()> {
+pub fn demo(
+    out: &Path,
+    preset: Option<ModelPreset>,
+    common: &Common,
+    stop: &AtomicBool,
+) -> Result<()> {
     let started = std::time::Instant::now();
     let subject = out.join("subject");
     if !subject.join("annots.npy").is_file() {
@@ -523,7 +528,9 @@ pub fn demo(out: &Path, preset: ModelPreset, common: &Common, stop: &AtomicBool)
         &mut table,
         &format!("dataset.cache={}", quote(&out.join("cache"))),
     )?;
-    config::apply_override(&mut table, &format!("model.preset=\"{}\"", preset.name()))?;
+    if let Some(preset) = preset {
+        config::apply_override(&mut table, &format!("model.preset=\"{}\"", preset.name()))?;
+    }
     for o in &common.overrides {
         config::apply_override(&mut table, o)?;
     }
@@ -563,7 +570,8 @@ pub fn demo(out: &Path, preset: ModelPreset, common: &Common, stop: &AtomicBool)
     )?;
     times.push(("turntable render", t.elapsed()));
 
-    println!("\nanerf demo: {} (preset {})", run.display(), preset.name());
+    let preset = preset.map_or("fast (configs/demo.toml)", |p| p.name());
+    println!("\nanerf demo: {} (preset {preset})", run.display());
     println!(
         "{}",
         markdown_table(

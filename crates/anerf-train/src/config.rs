@@ -284,6 +284,7 @@ pub fn load(path: &Path, overrides: &[String]) -> Result<ExperimentConfig, Confi
 pub fn from_table(mut table: Table) -> Result<ExperimentConfig, ConfigError> {
     table.remove("base");
     expand_model_preset(&mut table)?;
+    default_learning_rates(&mut table);
     let config: ExperimentConfig = serde_path_to_error::deserialize(Value::Table(table))
         .map_err(|e| ConfigError::Invalid(format!("{}: {}", e.path(), e.inner().message())))?;
     validate(&config)?;
@@ -305,8 +306,6 @@ preset = "paper"
 [train]
 iterations = 200000
 batch = 1024
-lr = 5e-4
-lr_final = 5e-5
 schedule = "paper"
 grad_clip = 40.0
 checkpoint_every = 5000
@@ -316,8 +315,6 @@ log_every = 100
 [animate]
 iterations = 10000
 batch = 65536
-lr = 5e-4
-lr_final = 5e-5
 schedule = "paper"
 grad_clip = 40.0
 checkpoint_every = 2000
@@ -442,6 +439,29 @@ fn expand_model_preset(table: &mut Table) -> Result<(), ConfigError> {
     merge(&mut full, model);
     table.insert("model".into(), Value::Table(full));
     Ok(())
+}
+
+/// Fills `lr` and `lr_final` of `[train]` and `[animate]` where no file or override gave them, from the
+/// model's point encoding: the paper's 5e-4 → 5e-5 for frequency encodings, Instant-NGP's 1e-2 → 1e-3 for
+/// hash grids (whose tables barely move at the paper's rate).
+fn default_learning_rates(table: &mut Table) {
+    let hash_grid = table
+        .get("model")
+        .and_then(|m| m.get("encoding"))
+        .and_then(|e| e.get("kind"))
+        .and_then(Value::as_str)
+        == Some("hash_grid");
+    let (lr, lr_final) = if hash_grid {
+        (1e-2, 1e-3)
+    } else {
+        (5e-4, 5e-5)
+    };
+    for stage in ["train", "animate"] {
+        if let Some(Value::Table(t)) = table.get_mut(stage) {
+            t.entry("lr").or_insert(Value::Float(lr));
+            t.entry("lr_final").or_insert(Value::Float(lr_final));
+        }
+    }
 }
 
 /// Checks values serde cannot: ranges, sizes and positivity. Errors name the key.
@@ -591,6 +611,26 @@ width = 48
         assert_eq!(again, c);
         let saved = write(dir.path(), "resolved.toml", &to_toml(&c));
         assert_eq!(load(&saved, &[]).unwrap(), c);
+    }
+
+    /// Without `lr` in any file, the rates follow the encoding; a given rate is kept.
+    #[test]
+    fn learning_rates_default_by_encoding() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = write(dir.path(), "s.toml", SUBJECT);
+        let rates = |c: &ExperimentConfig| {
+            (
+                c.train.lr,
+                c.train.lr_final,
+                c.animate.lr,
+                c.animate.lr_final,
+            )
+        };
+        assert_eq!(rates(&load(&p, &[]).unwrap()), (5e-4, 5e-5, 5e-4, 5e-5));
+        let fast = load(&p, &["model.preset=fast".into()]).unwrap();
+        assert_eq!(rates(&fast), (1e-2, 1e-3, 1e-2, 1e-3));
+        let given = load(&p, &["model.preset=fast".into(), "train.lr=3e-3".into()]).unwrap();
+        assert_eq!(rates(&given), (3e-3, 1e-3, 1e-2, 1e-3));
     }
 
     #[test]
