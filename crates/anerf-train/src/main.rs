@@ -7,6 +7,8 @@ use anerf_train::commands;
 use clap::Parser;
 
 fn main() -> ExitCode {
+    // `commands::device` re-runs this binary to check a GPU backend in a child process.
+    anerf_core::device::probe::exit_if_probe_child();
     let cli = Cli::parse();
     match run(cli) {
         Ok(code) => code,
