@@ -6,6 +6,8 @@ use std::str::FromStr;
 
 use burn::prelude::Device;
 
+pub mod probe;
+
 /// A compute backend the user can ask for by name.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Serialize, serde::Deserialize)]
 #[serde(rename_all = "lowercase")]

@@ -3,6 +3,7 @@
 use std::path::{Path, PathBuf};
 use std::sync::atomic::AtomicBool;
 
+use anerf_core::device::probe::checked_device;
 use anerf_core::model::{AnimatableNerf, ModelPreset};
 use anerf_core::{DeviceChoice, FrameId};
 use anerf_data::synthetic::{write_subject, SyntheticSpec};
@@ -22,8 +23,24 @@ use crate::train::{train_stage1, train_stage2, StageOutcome, TrainOptions};
 
 /// The device named by `--device`, else by the config.
 pub fn device(config: &ExperimentConfig, common: &Common) -> Result<Device> {
-    let choice: DeviceChoice = common.device.unwrap_or(config.device);
-    choice.device().map_err(anyhow::Error::msg)
+    open_device(common.device.unwrap_or(config.device), common)
+}
+
+/// The device of `choice`. A GPU backend is first checked in a child process that re-runs the current
+/// executable (the `anerf` binary, whose `main` answers such a check), so that a driver crash becomes an
+/// error instead of killing the run; the check runs once per process, and the adapter it ran on is printed
+/// then unless `--quiet`.
+fn open_device(choice: DeviceChoice, common: &Common) -> Result<Device> {
+    static ANNOUNCED: std::sync::Once = std::sync::Once::new();
+    let exe = std::env::current_exe().context("locating the anerf executable")?;
+    let checked =
+        checked_device(choice, || std::process::Command::new(exe)).with_context(|| {
+            format!("cannot use device '{choice}' (`--device flex` runs on the CPU)")
+        })?;
+    if let (Some(adapter), false) = (&checked.adapter, common.quiet) {
+        ANNOUNCED.call_once(|| eprintln!("device {choice}: {adapter}"));
+    }
+    Ok(checked.device)
 }
 
 /// Loads a config file with `--set` overrides.
@@ -514,6 +531,10 @@ pub fn demo(
 ) -> Result<()> {
     let started = std::time::Instant::now();
     let subject = out.join("subject");
+    if let Some(choice) = common.device {
+        // A GPU backend that cannot run fails here, not after the subject has been generated.
+        open_device(choice, common)?;
+    }
     if !subject.join("annots.npy").is_file() {
         synth(&subject, "demo", None)?;
     }

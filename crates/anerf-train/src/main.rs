@@ -12,6 +12,8 @@ use clap::Parser;
 static ALLOCATOR: anerf_core::alloc::BlockCache = anerf_core::alloc::BlockCache::new();
 
 fn main() -> ExitCode {
+    // `commands::device` re-runs this binary to check a GPU backend in a child process.
+    anerf_core::device::probe::exit_if_probe_child();
     let cli = Cli::parse();
     match run(cli) {
         Ok(code) => code,

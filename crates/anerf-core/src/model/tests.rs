@@ -14,7 +14,7 @@ use crate::geometry::{
     inverse_lbs_point, Aabb, Camera, CanonicalPose, GlobalTransform, Pose, Skeleton,
 };
 use crate::render::{color_mse, composite, stratified_depths, HostRays, RayBatch};
-use crate::tensor::{from_rows, to_host};
+use crate::tensor::{from_rows, parameter_gradients, to_host};
 use crate::{FrameId, ViewId};
 
 const JOINTS: [[f32; 3]; 4] = [
@@ -145,32 +145,14 @@ fn tiny_model(device: &Device) -> AnimatableNerf {
     })
 }
 
-/// Collects, for every float parameter, whether the gradients hold an entry and whether it is non-zero.
-struct GradientCheck<'a> {
-    grads: &'a GradientsParams,
-    found: Vec<(ParamId, bool)>,
-}
-
-impl ModuleVisitor for GradientCheck<'_> {
-    fn visit_float<const D: usize>(&mut self, param: &Param<Tensor<D>>) {
-        let nonzero = self
-            .grads
-            .get::<D>(param.id)
-            .map(|g| to_host(g.abs().sum())[0] > 0.0);
-        self.found.push((param.id, nonzero.unwrap_or(false)));
-    }
-}
-
+/// How many float parameters of `module` received a non-zero gradient, and how many there are.
 fn params_with_gradient<M: Module>(module: &M, grads: &GradientsParams) -> (usize, usize) {
-    let mut check = GradientCheck {
-        grads,
-        found: Vec::new(),
-    };
-    module.visit(&mut check);
-    (
-        check.found.iter().filter(|(_, g)| *g).count(),
-        check.found.len(),
-    )
+    let all = parameter_gradients(module, grads);
+    let with = all
+        .iter()
+        .filter(|g| g.as_ref().is_some_and(|g| g.iter().any(|v| *v != 0.0)))
+        .count();
+    (with, all.len())
 }
 
 #[test]
@@ -490,4 +472,62 @@ fn occupancy_grid_matches_zeroing_samples_in_empty_cells() {
         a.iter().zip(&c).any(|(x, y)| (x - y).abs() > 1e-3),
         "the grid changed nothing: the test would not see a mistake"
     );
+}
+
+/// The same image and the same parameter gradients on wgpu as on flex, where a wgpu adapter works (checked
+/// in a child process first; skipped with the reason printed where none does). Tolerance as in
+/// `tests/wgpu_backend.rs`: `|wgpu − flex| ≤ 1e-4 · (1 + |flex|)`, f32 sums in another order.
+#[cfg(feature = "wgpu")]
+#[test]
+fn flex_and_wgpu_render_and_differentiate_the_same() {
+    let Some(gpu) = crate::device::probe::device_for_test(
+        crate::DeviceChoice::Wgpu,
+        "model::tests::flex_and_wgpu_render_and_differentiate_the_same",
+    ) else {
+        return;
+    };
+    let flex = cpu_device().autodiff();
+    flex.seed(6);
+    let model = tiny_model(&flex);
+    let on = |device: Device| {
+        let s = scene(&device, FrameCode::Training(1));
+        let model = model.clone().fork(&device);
+        let out = model.render(&s.rays, &s.frame, &s.canonical, None, true);
+        let weights = Tensor::<2>::from_floats([[0.7, -0.4, 1.1]], &device);
+        let objective = (out.rgb.clone() * weights).sum()
+            + out.consistency.unwrap().loss(model.config().consistency);
+        let grads = GradientsParams::from_grads(objective.backward(), &model);
+        let mut values = vec![to_host(out.rgb)];
+        values.extend(parameter_gradients(&model, &grads).into_iter().flatten());
+        values
+    };
+    let expected = on(flex.clone());
+    let got = on(gpu.autodiff());
+    assert!(
+        expected[0].iter().any(|v| *v > 1e-3),
+        "the scene renders something"
+    );
+    assert_eq!(
+        got.len(),
+        expected.len(),
+        "the same parameters received gradients"
+    );
+    let mut overall = 0.0f32;
+    for (i, (g, e)) in got.iter().zip(&expected).enumerate() {
+        let what = if i == 0 {
+            "image".to_string()
+        } else {
+            format!("gradient {}", i - 1)
+        };
+        assert_eq!(g.len(), e.len(), "{what}: lengths differ");
+        let (at, worst) = crate::tensor::worst_relative_difference(g, e);
+        assert!(
+            worst <= 1e-4,
+            "{what}: element {at} is {} on wgpu, {} on flex (relative difference {worst:e})",
+            g[at],
+            e[at]
+        );
+        overall = overall.max(worst);
+    }
+    eprintln!("worst relative difference over the image and gradients: {overall:.1e}");
 }
