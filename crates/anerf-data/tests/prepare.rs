@@ -487,3 +487,62 @@ fn images_of_the_wrong_size_are_named_when_preparing() {
         .iter()
         .any(|p| p.ends_with("manifest.json")));
 }
+
+/// A pose file of a frame poses the body as the prepared frame: the synthetic subject's posed vertices are
+/// exact LBS of its canonical vertices (0.3 µm), so bones, box and volume must agree with the cached ones
+/// (the posing here shares no code with the writer's).
+#[test]
+fn a_frames_pose_file_poses_the_body_as_the_prepared_frame() {
+    use anerf_data::loaders::read_pose_file;
+    use anerf_data::synthetic::{write_subject, SyntheticSpec};
+
+    let dir = tempfile::tempdir().unwrap();
+    let root = dir.path().join("subject");
+    write_subject(&SyntheticSpec::tiny(), &root).unwrap();
+    let subject = load_zju_mocap(&root, &LoadOptions::default()).unwrap();
+    let p = prepare(&subject, &options(&dir.path().join("cache"))).unwrap();
+    for f in [0usize, 5] {
+        let record = &subject.frames[f];
+        let file = root
+            .join("new_params")
+            .join(format!("{}.npy", record.file_index));
+        let pose = read_pose_file(&file, p.skeleton.num_joints()).unwrap();
+        let posed = p.pose_body(&pose, &file).unwrap();
+        let frame = p.frame(FrameId(f)).unwrap();
+        for (a, b) in posed.bones.matrices().iter().zip(frame.bones.matrices()) {
+            assert!(a.abs_diff_eq(*b, 1e-6), "frame {f}: {a} vs {b}");
+        }
+        assert!((posed.bounds.min - frame.bounds.min).abs().max_element() < 1e-5);
+        assert!((posed.bounds.max - frame.bounds.max).abs().max_element() < 1e-5);
+        let cached = p.volume(FrameId(f)).unwrap();
+        assert_eq!(posed.volume.dims, cached.dims, "frame {f}");
+        assert!((posed.volume.bounds.min - cached.bounds.min).length() < 1e-5);
+        let c = cached.num_joints + 1;
+        let (mut worst, mut moved) = ([0.0f32; 2], 0);
+        for (a, b) in posed.volume.data.chunks(c).zip(cached.data.chunks(c)) {
+            let w = max_diff(&a[..c - 1], &b[..c - 1]);
+            worst[0] = worst[0].max(w);
+            worst[1] = worst[1].max((a[c - 1] - b[c - 1]).abs());
+            moved += usize::from(w > 1e-5);
+        }
+        let nodes = cached.data.len() / c;
+        eprintln!(
+            "frame {f}: worst weight {worst:?} (weight, distance), {moved}/{nodes} nodes moved"
+        );
+        // Sub-micrometre vertex differences move distances by as much; the weights of a few nodes move
+        // more: barycentric coordinates on the synthetic mesh's sliver triangles, and near-ties between
+        // two triangles that flip.
+        assert!(
+            worst[1] < 1e-5 && worst[0] < 0.05 && moved * 200 < nodes,
+            "frame {f}: {worst:?}, {moved}/{nodes} nodes moved"
+        );
+    }
+    // A pose file with the wrong number of joints is refused, naming the file and the joint count.
+    let err = read_pose_file(
+        &root.join("new_params").join("0.npy"),
+        p.skeleton.num_joints() + 1,
+    )
+    .unwrap_err()
+    .to_string();
+    assert!(err.contains("0.npy") && err.contains("joints"), "{err}");
+}

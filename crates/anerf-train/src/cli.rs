@@ -133,8 +133,15 @@ pub struct RenderArgs {
     #[arg(long, default_value_t = 36)]
     pub views: usize,
     /// Render the run's novel-pose frames from this camera instead of an orbit.
-    #[arg(long)]
+    #[arg(long, conflicts_with = "poses")]
     pub novel_poses_from_view: Option<usize>,
+    /// Render the poses of this pose file, or of every pose file in this folder (`params/{i}.npy` format:
+    /// `poses`, `Rh`, `Th`), after fitting their blend-weight codes with the run's `[animate]` settings.
+    #[arg(long)]
+    pub poses: Option<PathBuf>,
+    /// Dataset camera of `--poses` (default: the first training view).
+    #[arg(long, requires = "poses")]
+    pub view: Option<usize>,
     /// Output image size (width = height) of the orbit; default: the dataset's.
     #[arg(long)]
     pub size: Option<u32>,

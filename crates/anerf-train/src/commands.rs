@@ -17,7 +17,7 @@ use crate::checkpoint::Checkpoint;
 use crate::cli::Common;
 use crate::config::{self, ExperimentConfig, FrameRange};
 use crate::experiment::Experiment;
-use crate::render::render_view;
+use crate::render::{render_shot, render_view, Shot};
 use crate::run_dir::RunDir;
 use crate::train::{train_stage1, train_stage2, StageOutcome, TrainOptions};
 
@@ -72,16 +72,20 @@ fn train_flag_overrides(args: &crate::cli::TrainArgs) -> Result<Vec<String>> {
     if let Some(v) = &args.train_views {
         overrides.push(format!("dataset.train_views={v:?}"));
     }
-    for (key, value) in [
+    let ranges = [
         ("train_frames", &args.train_frames),
         ("novel_pose_frames", &args.novel_pose_frames),
-    ] {
+    ];
+    for (key, value) in ranges {
         if let Some(v) = value {
             v.parse::<FrameRange>()
                 .map_err(|e| anyhow::anyhow!("--{}: {e}", key.replace('_', "-")))?;
             overrides.push(format!("dataset.iccv.{key}=\"{v}\""));
-            overrides.push("dataset.ranges=\"iccv\"".into());
         }
+    }
+    // Frame flags set the `iccv` ranges, so those are the ones used.
+    if ranges.iter().any(|(_, v)| v.is_some()) {
+        overrides.push("dataset.ranges=\"iccv\"".into());
     }
     if let Some(p) = args.preset {
         overrides.push(format!("model.preset=\"{}\"", p.name()));
@@ -414,7 +418,7 @@ pub fn preset_names() -> String {
 }
 
 /// What `anerf render` draws.
-#[derive(Debug, Clone, Copy)]
+#[derive(Debug, Clone)]
 pub enum RenderJob {
     /// `views` cameras orbiting dataset frame `frame` (default: the first training frame).
     Orbit {
@@ -424,6 +428,28 @@ pub enum RenderJob {
     },
     /// Every novel-pose frame of the run from dataset camera `view` (needs stage 2).
     NovelPoses { view: usize },
+    /// The poses of a pose file or folder (`params/{i}.npy` format) from dataset camera `view` (default:
+    /// the first training view), after fitting their blend-weight codes as stage 2 does.
+    PoseFiles { path: PathBuf, view: Option<usize> },
+}
+
+/// Dataset camera `view` at the working resolution.
+fn dataset_camera(exp: &Experiment, view: usize) -> Result<anerf_core::geometry::Camera> {
+    exp.prepared.cameras.get(view).cloned().with_context(|| {
+        format!(
+            "view {view} does not exist (the dataset has {} cameras)",
+            exp.prepared.cameras.len()
+        )
+    })
+}
+
+/// A progress bar over `n` images, hidden with `--quiet`.
+fn image_bar(n: usize, common: &Common) -> indicatif::ProgressBar {
+    let bar = indicatif::ProgressBar::new(n as u64);
+    if common.quiet {
+        bar.set_draw_target(indicatif::ProgressDrawTarget::hidden());
+    }
+    bar
 }
 
 /// `anerf render`: PNG frames, an animated GIF and (with ffmpeg on PATH) an MP4 under `<run>/renders/`.
@@ -433,75 +459,71 @@ pub fn render(run_path: &Path, job: RenderJob, common: &Common) -> Result<PathBu
     let mut config = run.read_config()?;
     apply_overrides(&mut config, common)?;
     let device = device(&config, common)?;
+    // Pose files need their blend-weight codes fitted first, which takes gradients.
+    let device = match job {
+        RenderJob::PoseFiles { .. } => device.autodiff(),
+        _ => device,
+    };
     let model = load_trained(&run, &config, &device)?;
     let mut exp = Experiment::open(config, device, !common.quiet)?;
-    let (name, shots): (String, Vec<(FrameId, anerf_core::geometry::Camera)>) = match job {
+    let chunk = exp.config.eval.chunk;
+    let (name, frames) = match job {
+        RenderJob::PoseFiles { path, view } => {
+            let view = view.unwrap_or(exp.train_views[0].0);
+            let camera = dataset_camera(&exp, view)?;
+            let sequence = crate::poses::PoseSequence::load(&path, &exp.prepared)?;
+            let targets = sequence.targets(exp.novel_appearance(), &exp.device);
+            let model = crate::train::fit_pose_codes(
+                model,
+                &targets,
+                exp.canonical(),
+                &exp.config.animate,
+                exp.config.seed,
+                !common.quiet,
+            )?;
+            let bar = image_bar(targets.len(), common);
+            let mut frames = Vec::with_capacity(targets.len());
+            for (target, file) in targets.iter().zip(&sequence.files) {
+                let shot = Shot {
+                    inputs: &target.inputs,
+                    bounds: target.bounds,
+                    camera: &camera,
+                    ground_truth: None,
+                };
+                let image = render_shot(&model, exp.canonical(), &shot, chunk, &exp.device)
+                    .with_context(|| format!("rendering the pose of {}", file.display()))?;
+                frames.push(image.prediction);
+                bar.inc(1);
+            }
+            bar.finish_and_clear();
+            let stem = path
+                .file_stem()
+                .map_or("poses".into(), |s| s.to_string_lossy().into_owned());
+            (format!("poses_{stem}_view{view:02}"), frames)
+        }
         RenderJob::Orbit { frame, views, size } => {
-            let frame = frame.map(FrameId).unwrap_or(exp.train_frames[0]);
-            if matches!(
-                exp.frame_code(frame)?.0,
-                anerf_core::model::FrameCode::Novel(_)
-            ) && model.novel_blend.is_none()
-            {
-                bail!("{frame} is a novel pose; run `anerf animate` first");
-            }
-            let bounds = exp
-                .prepared
-                .frame(frame)
-                .with_context(|| format!("{frame} was not prepared"))?
-                .bounds;
-            let mut reference = exp.prepared.cameras[exp.train_views[0].0].clone();
-            if let Some(s) = size {
-                reference = reference.resized(s as f32 / reference.width as f32);
-            }
-            let up = crate::render::mean_up(&exp.prepared.cameras);
-            let center = (bounds.min + bounds.max) * 0.5;
-            let cams = crate::render::orbit(&reference, center, up, views.max(1));
+            let (name, shots) = orbit_shots(&exp, &model, frame, views, size)?;
             (
-                format!("orbit_frame{:06}", frame.0),
-                cams.into_iter().map(|c| (frame, c)).collect(),
+                name,
+                render_dataset_shots(&model, &mut exp, &shots, common)?,
             )
         }
         RenderJob::NovelPoses { view } => {
-            if model.novel_blend.is_none() {
-                bail!(
-                    "{} has no stage-2 checkpoint; run `anerf animate` first",
-                    run.root.display()
-                );
-            }
-            let camera = exp.prepared.cameras.get(view).cloned().with_context(|| {
-                format!(
-                    "view {view} does not exist (the dataset has {} cameras)",
-                    exp.prepared.cameras.len()
-                )
-            })?;
+            let (name, shots) = novel_pose_shots(&exp, &model, &run, view)?;
             (
-                format!("novel_poses_view{view:02}"),
-                exp.novel_frames
-                    .iter()
-                    .map(|&f| (f, camera.clone()))
-                    .collect(),
+                name,
+                render_dataset_shots(&model, &mut exp, &shots, common)?,
             )
         }
     };
     let dir = run.renders().join(&name);
-    let bar = indicatif::ProgressBar::new(shots.len() as u64);
-    if common.quiet {
-        bar.set_draw_target(indicatif::ProgressDrawTarget::hidden());
-    }
-    let chunk = exp.config.eval.chunk;
-    let mut frames = Vec::with_capacity(shots.len());
-    for (i, (frame, camera)) in shots.iter().enumerate() {
-        let image = render_view(&model, &mut exp, *frame, camera, None, chunk)?;
+    for (i, frame) in frames.iter().enumerate() {
         anerf_eval::images::write_png(
             &dir.join(format!("{i:04}.png")),
-            &image.prediction,
+            frame,
             anerf_eval::images::PngDepth::Eight,
         )?;
-        frames.push(image.prediction);
-        bar.inc(1);
     }
-    bar.finish_and_clear();
     let gif = run.renders().join(format!("{name}.gif"));
     anerf_eval::images::write_gif(&gif, &frames, 12)?;
     if let anerf_eval::images::VideoOutcome::Written(mp4) =
@@ -516,6 +538,84 @@ pub fn render(run_path: &Path, job: RenderJob, common: &Common) -> Result<PathBu
         gif.display()
     );
     Ok(gif)
+}
+
+/// A dataset frame seen by a camera.
+type DatasetShot = (FrameId, anerf_core::geometry::Camera);
+
+/// Renders dataset frames from cameras (no ground truth).
+fn render_dataset_shots(
+    model: &AnimatableNerf,
+    exp: &mut Experiment,
+    shots: &[DatasetShot],
+    common: &Common,
+) -> Result<Vec<anerf_eval::RgbImageF32>> {
+    let bar = image_bar(shots.len(), common);
+    let mut frames = Vec::with_capacity(shots.len());
+    for (frame, camera) in shots {
+        let chunk = exp.config.eval.chunk;
+        frames.push(render_view(model, exp, *frame, camera, None, chunk)?.prediction);
+        bar.inc(1);
+    }
+    bar.finish_and_clear();
+    Ok(frames)
+}
+
+/// The output name and cameras of an orbit around dataset frame `frame` (default: the first training one).
+fn orbit_shots(
+    exp: &Experiment,
+    model: &AnimatableNerf,
+    frame: Option<usize>,
+    views: usize,
+    size: Option<u32>,
+) -> Result<(String, Vec<DatasetShot>)> {
+    let frame = frame.map(FrameId).unwrap_or(exp.train_frames[0]);
+    if matches!(
+        exp.frame_code(frame)?.0,
+        anerf_core::model::FrameCode::Novel(_)
+    ) && model.novel_blend.is_none()
+    {
+        bail!("{frame} is a novel pose; run `anerf animate` first");
+    }
+    let bounds = exp
+        .prepared
+        .frame(frame)
+        .with_context(|| format!("{frame} was not prepared"))?
+        .bounds;
+    let mut reference = exp.prepared.cameras[exp.train_views[0].0].clone();
+    if let Some(s) = size {
+        reference = reference.resized(s as f32 / reference.width as f32);
+    }
+    let up = crate::render::mean_up(&exp.prepared.cameras);
+    let center = (bounds.min + bounds.max) * 0.5;
+    let cams = crate::render::orbit(&reference, center, up, views.max(1));
+    Ok((
+        format!("orbit_frame{:06}", frame.0),
+        cams.into_iter().map(|c| (frame, c)).collect(),
+    ))
+}
+
+/// The output name and shots of the run's novel-pose frames from dataset camera `view`.
+fn novel_pose_shots(
+    exp: &Experiment,
+    model: &AnimatableNerf,
+    run: &RunDir,
+    view: usize,
+) -> Result<(String, Vec<DatasetShot>)> {
+    if model.novel_blend.is_none() {
+        bail!(
+            "{} has no stage-2 checkpoint; run `anerf animate` first",
+            run.root.display()
+        );
+    }
+    let camera = dataset_camera(exp, view)?;
+    Ok((
+        format!("novel_poses_view{view:02}"),
+        exp.novel_frames
+            .iter()
+            .map(|&f| (f, camera.clone()))
+            .collect(),
+    ))
 }
 
 /// The experiment of `anerf demo` (also `configs/demo.toml`).

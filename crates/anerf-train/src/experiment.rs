@@ -167,21 +167,25 @@ impl Experiment {
         &self.canonical
     }
 
-    /// How frame `id` is conditioned: its own codes if it is a training frame, the stage-2 codes if it is a
-    /// novel-pose frame; the appearance code of a novel pose is the last training frame's on ZJU-MoCap and
-    /// the first one's on Human3.6M (the reference's rule).
+    /// How frame `id` is conditioned: its own codes if it is a training frame, the stage-2 codes and
+    /// [`Self::novel_appearance`] if it is a novel-pose frame.
     pub fn frame_code(&self, id: FrameId) -> Result<(FrameCode, usize)> {
         if let Some(f) = self.train_frames.iter().position(|&t| t == id) {
             return Ok((FrameCode::Training(f), f));
         }
         if let Some(j) = self.novel_frames.iter().position(|&t| t == id) {
-            let appearance = match self.prepared.kind {
-                DatasetKind::H36m => 0,
-                _ => self.train_frames.len() - 1,
-            };
-            return Ok((FrameCode::Novel(j), appearance));
+            return Ok((FrameCode::Novel(j), self.novel_appearance()));
         }
         bail!("{id} is neither a training nor a novel-pose frame of this experiment")
+    }
+
+    /// The appearance code (training-frame position) a novel pose is rendered with: the last training
+    /// frame's on ZJU-MoCap, the first one's on Human3.6M (the reference's rule).
+    pub fn novel_appearance(&self) -> usize {
+        match self.prepared.kind {
+            DatasetKind::H36m => 0,
+            _ => self.train_frames.len() - 1,
+        }
     }
 
     /// Model inputs of frame `id` on the device (uploaded on first use; the clone shares the tensors).

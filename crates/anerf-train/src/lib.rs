@@ -8,6 +8,7 @@ pub mod commands;
 pub mod config;
 pub mod experiment;
 pub mod mesh;
+pub mod poses;
 pub mod render;
 pub mod run_dir;
 pub mod schedule;

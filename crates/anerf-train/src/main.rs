@@ -67,9 +67,10 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
             commands::compare(&a.prediction, &a.ground_truth, a.mask.as_deref())?
         }
         Command::Render(a) => {
-            let job = match a.novel_poses_from_view {
-                Some(view) => commands::RenderJob::NovelPoses { view },
-                None => commands::RenderJob::Orbit {
+            let job = match (a.poses, a.novel_poses_from_view) {
+                (Some(path), _) => commands::RenderJob::PoseFiles { path, view: a.view },
+                (None, Some(view)) => commands::RenderJob::NovelPoses { view },
+                (None, None) => commands::RenderJob::Orbit {
                     frame: a.frame,
                     views: a.views,
                     size: a.size,

@@ -1,13 +1,15 @@
 //! Rendering whole images of a frame from a camera with a trained model.
 
-use anerf_core::geometry::Camera;
-use anerf_core::model::AnimatableNerf;
+use anerf_core::geometry::{Aabb, Camera};
+use anerf_core::model::{AnimatableNerf, CanonicalInputs, FrameInputs};
 use anerf_core::render::RayBatch;
 use anerf_core::tensor::to_host;
 use anerf_core::{FrameId, ViewId};
 use anerf_data::{image_rays, SamplerOptions};
 use anerf_eval::{ImageSize, PixelMask, RgbImageF32};
 use anyhow::{Context, Result};
+use burn::prelude::Device;
+use image::{GrayImage, Rgb32FImage};
 
 use crate::experiment::Experiment;
 
@@ -24,6 +26,16 @@ pub struct RenderedImage {
     /// Samples that reached the MLPs, and all samples along the rendered rays.
     pub surviving_samples: usize,
     pub total_samples: usize,
+}
+
+/// What one image shows: a body (model inputs and world box) seen by a camera, with the dataset's image
+/// and mask when the camera is a dataset view.
+pub struct Shot<'a> {
+    pub inputs: &'a FrameInputs,
+    /// World-space box of the posed body (metres): rays are sampled where they cross it.
+    pub bounds: Aabb,
+    pub camera: &'a Camera,
+    pub ground_truth: Option<(&'a Rgb32FImage, &'a GrayImage)>,
 }
 
 /// Renders frame `frame` as seen by camera `camera` (a dataset view when `view` is given, whose image then
@@ -45,27 +57,41 @@ pub fn render_view(
         Some(v) => Some((exp.prepared.image(frame, v)?, exp.prepared.mask(frame, v)?)),
         None => None,
     };
-    let rays = image_rays(
+    let inputs = exp.frame_inputs(frame)?;
+    let shot = Shot {
+        inputs: &inputs,
+        bounds,
         camera,
-        &bounds,
-        images.as_ref().map(|(i, m)| (i, m)),
+        ground_truth: images.as_ref().map(|(i, m)| (i, m)),
+    };
+    render_shot(model, exp.canonical(), &shot, chunk, &exp.device)
+        .with_context(|| format!("rendering {frame}"))
+}
+
+/// Renders `shot`, `chunk` rays at a time.
+pub fn render_shot(
+    model: &AnimatableNerf,
+    canonical: &CanonicalInputs,
+    shot: &Shot,
+    chunk: usize,
+    device: &Device,
+) -> Result<RenderedImage> {
+    let rays = image_rays(
+        shot.camera,
+        &shot.bounds,
+        shot.ground_truth,
         &SamplerOptions::default(),
     )
-    .with_context(|| format!("rays of {frame}"))?;
+    .context("casting the image's rays")?;
     let size = ImageSize::new(rays.width, rays.height);
-    let inputs = exp.frame_inputs(frame)?;
     let mut prediction = RgbImageF32::black(size);
     let mut hit = vec![false; size.pixels()];
     let (mut surviving_samples, mut total_samples) = (0, 0);
     for start in (0..rays.rays.len()).step_by(chunk.max(1)) {
         let part = rays.rays.slice(start..(start + chunk).min(rays.rays.len()));
-        let batch = RayBatch::new(
-            &part,
-            frame,
-            view.unwrap_or(ViewId(usize::MAX)),
-            &exp.device,
-        );
-        let out = model.render(&batch, &inputs, exp.canonical(), None, false);
+        // Frame and view ids label training batches; a rendered image needs neither.
+        let batch = RayBatch::new(&part, FrameId(usize::MAX), ViewId(usize::MAX), device);
+        let out = model.render(&batch, shot.inputs, canonical, None, false);
         surviving_samples += out.surviving_samples;
         total_samples += out.total_samples;
         let rgb = to_host(out.rgb);

@@ -4,7 +4,9 @@
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Instant;
 
-use anerf_core::model::{AnimatableNerf, ModelConfig};
+use anerf_core::geometry::skinning::points_tensor;
+use anerf_core::geometry::Aabb;
+use anerf_core::model::{AnimatableNerf, CanonicalInputs, FrameInputs, ModelConfig};
 use anerf_core::render::{color_mse, psnr_from_mse, RayBatch};
 use anerf_core::tensor::{from_rows, to_host};
 use anerf_data::{RaySampler, SamplerOptions};
@@ -441,7 +443,6 @@ pub fn train_stage2(
     let mut window = Window::default();
     let mut last_loss = f32::NAN;
     let mut interrupted = false;
-    let canonical_box = exp.canonical().bounds;
     let first_step = state.step;
     while state.step < cfg.iterations {
         if stop.load(Ordering::SeqCst)
@@ -454,40 +455,23 @@ pub fn train_stage2(
         }
         let j = state.rng.random_range(0..exp.novel_frames.len());
         let frame = exp.novel_frames[j];
-        let inputs = exp.frame_inputs(frame)?;
-        let world_box = exp
-            .prepared
-            .frame(frame)
-            .with_context(|| format!("{frame} was not prepared"))?
-            .bounds;
-        let world = uniform_in_box(&mut state.rng, world_box.min, world_box.max, cfg.batch);
-        let pose: Vec<Vec3> = world
-            .iter()
-            .map(|&p| inputs.global.world_to_pose(p))
-            .collect();
-        let canonical_points = uniform_in_box(
-            &mut state.rng,
-            canonical_box.min,
-            canonical_box.max,
-            cfg.batch,
-        );
-        let loss = model.stage2_loss(
-            &inputs,
-            exp.canonical(),
-            anerf_core::geometry::skinning::points_tensor(&pose, &device),
-            anerf_core::geometry::skinning::points_tensor(&canonical_points, &device),
-        );
-        let values = to_host(Tensor::cat(
-            vec![loss.total.clone(), loss.observation, loss.canonical],
-            0,
-        ));
-        check_finite(values[0], 2, state.step, run)?;
+        let target = PoseTarget {
+            inputs: exp.frame_inputs(frame)?,
+            bounds: exp
+                .prepared
+                .frame(frame)
+                .with_context(|| format!("{frame} was not prepared"))?
+                .bounds,
+        };
+        let (loss, value) =
+            stage2_loss(&model, &mut state.rng, cfg.batch, &target, exp.canonical());
+        check_finite(value, 2, state.step, run)?;
         let lr = learning_rate(&cfg, state.step);
-        let grads = GradientsParams::from_grads(loss.total.backward(), &model);
+        let grads = GradientsParams::from_grads(loss.backward(), &model);
         model = optim.step(lr, model, grads);
         state.step += 1;
-        last_loss = values[0];
-        window.add(values[0], 0.0, values[0], 1.0, 1.0, 2 * cfg.batch);
+        last_loss = value;
+        window.add(value, 0.0, value, 1.0, 1.0, 2 * cfg.batch);
         if state.step % cfg.log_every == 0 || state.step == cfg.iterations {
             let line = LogLine {
                 stage: 2,
@@ -522,4 +506,75 @@ pub fn train_stage2(
         interrupted,
         seconds: started.elapsed().as_secs_f64(),
     })
+}
+
+/// A pose stage 2 fits a blend-weight code for: its model inputs (`code` = [`anerf_core::model::FrameCode::Novel`]) and the
+/// world-space box around its body (metres).
+pub struct PoseTarget {
+    pub inputs: FrameInputs,
+    pub bounds: Aabb,
+}
+
+/// The stage-2 loss of `target` on `batch` points uniform in its world box (moved to pose space) and
+/// `batch` uniform in the canonical box; with its value on the host.
+fn stage2_loss(
+    model: &AnimatableNerf,
+    rng: &mut ChaCha8Rng,
+    batch: usize,
+    target: &PoseTarget,
+    canonical: &CanonicalInputs,
+) -> (Tensor<1>, f32) {
+    let device = model.device();
+    let global = target.inputs.global;
+    let pose: Vec<Vec3> = uniform_in_box(rng, target.bounds.min, target.bounds.max, batch)
+        .into_iter()
+        .map(|p| global.world_to_pose(p))
+        .collect();
+    let canonical_points = uniform_in_box(rng, canonical.bounds.min, canonical.bounds.max, batch);
+    let loss = model
+        .stage2_loss(
+            &target.inputs,
+            canonical,
+            points_tensor(&pose, &device),
+            points_tensor(&canonical_points, &device),
+        )
+        .total;
+    let value = to_host(loss.clone())[0];
+    (loss, value)
+}
+
+/// Fits blend-weight codes for `targets` (poses outside the run's data, e.g. from pose files) as stage 2
+/// does — `cfg.iterations` steps of `cfg.batch` points, poses drawn at random — and returns the model with
+/// them as its novel-pose field, every parameter frozen. Nothing is written to the run. With the residual
+/// off the body model's weights need no fit. The model must live on an autodiff device.
+pub fn fit_pose_codes(
+    model: AnimatableNerf,
+    targets: &[PoseTarget],
+    canonical: &CanonicalInputs,
+    cfg: &StageConfig,
+    seed: u64,
+    progress: bool,
+) -> Result<AnimatableNerf> {
+    let device = model.device();
+    let mut model = model.with_novel_field(targets.len(), &device);
+    if !model.config().neural_blend_weights || targets.is_empty() {
+        return Ok(model.no_grad());
+    }
+    device.seed(seed ^ 3);
+    let mut rng = ChaCha8Rng::seed_from_u64(seed ^ 0x5eed_0003);
+    let mut optim = optimizer(cfg);
+    let bar = progress_bar(cfg.iterations, 0, progress, 2);
+    for step in 0..cfg.iterations {
+        let j = rng.random_range(0..targets.len());
+        let (loss, value) = stage2_loss(&model, &mut rng, cfg.batch, &targets[j], canonical);
+        if !value.is_finite() {
+            bail!("fitting the poses' blend-weight codes: the loss is {value} at step {step} (lower animate.lr)");
+        }
+        let grads = GradientsParams::from_grads(loss.backward(), &model);
+        model = optim.step(learning_rate(cfg, step), model, grads);
+        bar.set_message(format!("fitting pose codes, loss {value:.5}"));
+        bar.inc(1);
+    }
+    bar.finish_and_clear();
+    Ok(model.no_grad())
 }

@@ -11,20 +11,11 @@ use std::time::{Duration, Instant};
 use anerf_core::device::cpu_device;
 use anerf_eval::ImageMetrics;
 use anerf_train::checkpoint::Checkpoint;
-use anerf_train::cli::Common;
 use anerf_train::commands;
 use anerf_train::config::{self, ExperimentConfig};
 use anerf_train::experiment::Experiment;
 use anerf_train::render::render_view;
-use common::tiny;
-
-fn quiet() -> Common {
-    Common {
-        device: None,
-        overrides: Vec::new(),
-        quiet: true,
-    }
-}
+use common::{quiet, tiny, train, trained};
 
 fn losses(run: &Path) -> Vec<f32> {
     std::fs::read_to_string(run.join("metrics.jsonl"))
@@ -78,16 +69,7 @@ fn a_few_steps_lower_the_loss_and_improve_a_held_out_view() {
     let dir = tempfile::tempdir().unwrap();
     let config = tiny(dir.path(), &[]);
     let before = held_out_psnr(&config, None);
-    let run = dir.path().join("run");
-    commands::train(
-        config.clone(),
-        &run,
-        &quiet(),
-        false,
-        None,
-        &AtomicBool::new(false),
-    )
-    .unwrap();
+    let run = trained(&config, dir.path());
     let l = losses(&run);
     assert_eq!(l.len(), 60);
     let (first, last) = (
@@ -292,15 +274,7 @@ fn a_diverging_run_stops_with_a_clear_message_and_keeps_the_last_good_checkpoint
         ],
     );
     let run = dir.path().join("run");
-    let err = commands::train(
-        config.clone(),
-        &run,
-        &quiet(),
-        false,
-        None,
-        &AtomicBool::new(false),
-    )
-    .unwrap_err();
+    let err = train(&config, &run).unwrap_err();
     let message = format!("{err:#}");
     assert!(
         message.contains("the loss is") && message.contains("last good checkpoint"),

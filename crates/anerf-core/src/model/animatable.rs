@@ -164,6 +164,11 @@ impl AnimatableNerf {
         }
     }
 
+    /// The device holding the parameters.
+    pub fn device(&self) -> Device {
+        self.nerf.appearance.weight.device()
+    }
+
     /// The configuration the model was built with.
     pub fn config(&self) -> &ModelConfig {
         &self.config

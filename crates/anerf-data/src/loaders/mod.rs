@@ -5,18 +5,19 @@
 mod arrays;
 pub mod check;
 mod lbs;
+mod poses;
 
 use std::path::{Component, Path, PathBuf};
 
-use anerf_core::geometry::{Camera, Pose};
+use anerf_core::geometry::Camera;
 use anerf_core::FrameId;
 use serde::{Deserialize, Serialize};
 
 pub(crate) use arrays::points as finite_points;
 pub use check::Problem;
 pub use lbs::read_body_model_file;
+pub use poses::{pose_files, read_pose_file};
 
-use self::arrays::{field, finite};
 use self::check::Checker;
 use crate::error::DataError;
 use crate::formats::{self, Value};
@@ -128,7 +129,7 @@ pub(crate) fn read(
         };
         let ppath = params_dir.join(format!("{file_index}.npy"));
         let pose = match num_joints {
-            Some(k) => ck.check(read_pose(&ppath, k))?,
+            Some(k) => ck.check(read_pose_file(&ppath, k))?,
             None => None,
         };
         let vpath = vertices_dir.join(format!("{file_index}.npy"));
@@ -507,39 +508,4 @@ fn file_index(annots_path: &Path, image: &str) -> Result<usize, DataError> {
                 ),
             )
         })
-}
-
-/// A frame's pose from `params/{i}.npy`: `poses` (3·K numbers, axis-angle), `Rh`, `Th` (metres).
-fn read_pose(path: &Path, num_joints: usize) -> Result<Pose, DataError> {
-    let v = formats::read_npy_object(path)?;
-    let flat = |key: &str, n: usize, hint: &str| -> Result<Vec<f64>, DataError> {
-        let a = field(&v, key, path)?;
-        if a.len() != n {
-            return Err(DataError::invalid(
-                path,
-                format!(
-                    "'{key}' has shape {} ({} numbers), expected {n}{hint}",
-                    arrays::shape_text(a.shape()),
-                    a.len()
-                ),
-            ));
-        }
-        finite(
-            a,
-            path,
-            key,
-            &a.shape().iter().map(|&d| Some(d)).collect::<Vec<_>>(),
-        )
-    };
-    let poses = flat(
-        "poses",
-        3 * num_joints,
-        &format!(" (3 per joint, {num_joints} joints in lbs/joints.npy)"),
-    )?;
-    let rh = flat("Rh", 3, "")?;
-    let th = flat("Th", 3, "")?;
-    let f32s = |v: &[f64]| v.iter().map(|&x| x as f32).collect::<Vec<f32>>();
-    let a3 = |v: &[f64]| std::array::from_fn(|i| v[i] as f32);
-    Pose::from_flat(&f32s(&poses), a3(&rh), a3(&th))
-        .map_err(|e| DataError::invalid(path, e.to_string()))
 }

@@ -4,6 +4,7 @@
 
 pub mod cache;
 pub mod nearest;
+pub mod new_pose;
 pub mod resize;
 pub mod undistort;
 pub mod volumes;
@@ -22,6 +23,7 @@ use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 use self::cache::{atomic_write, entry_dir, read_volume, volume_bytes, Fingerprint};
+pub use self::new_pose::PosedBody;
 use self::resize::{resize_area, resize_nearest, scaled_size};
 use self::undistort::UndistortMap;
 pub use self::volumes::{compute_volume, NearestMethod, VolumeGrid};
@@ -132,6 +134,8 @@ pub struct PreparedSubject {
     pub views: Vec<ViewId>,
     pub frames: Vec<PreparedFrame>,
     pub canonical: CanonicalBody,
+    /// The settings the entry was prepared with (new poses get the same volumes and boxes).
+    pub options: PrepareOptions,
 }
 
 #[derive(Serialize, Deserialize)]
@@ -210,6 +214,7 @@ impl PreparedSubject {
                 weights,
                 bounds: m.canonical_bounds,
             },
+            options: m.options,
         })
     }
 

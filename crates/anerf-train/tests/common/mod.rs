@@ -1,9 +1,43 @@
-//! The tiny synthetic subject and a config that trains on it, shared by the integration tests.
+//! The tiny synthetic subject and a config that trains on it, shared by the integration tests (each test
+//! crate uses a part of it).
+#![allow(dead_code)]
 
-use std::path::Path;
+use std::path::{Path, PathBuf};
+use std::sync::atomic::AtomicBool;
 
 use anerf_data::synthetic::{write_subject, SyntheticSpec};
+use anerf_train::cli::Common;
+use anerf_train::commands;
 use anerf_train::config::{self, ExperimentConfig};
+use anerf_train::train::StageOutcome;
+
+/// Command options without progress bars, on the default device.
+pub fn quiet() -> Common {
+    Common {
+        device: None,
+        overrides: Vec::new(),
+        quiet: true,
+    }
+}
+
+/// Trains stage 1 of `config` into `run` (no resume, no step limit).
+pub fn train(config: &ExperimentConfig, run: &Path) -> anyhow::Result<StageOutcome> {
+    commands::train(
+        config.clone(),
+        run,
+        &quiet(),
+        false,
+        None,
+        &AtomicBool::new(false),
+    )
+}
+
+/// Trains stage 1 of `config` to the end into `dir/run` and returns the run folder.
+pub fn trained(config: &ExperimentConfig, dir: &Path) -> PathBuf {
+    let run = dir.join("run");
+    train(config, &run).unwrap();
+    run
+}
 
 /// Writes the tiny subject into `dir/subject` and returns a config training on it.
 pub fn tiny(dir: &Path, overrides: &[&str]) -> ExperimentConfig {
