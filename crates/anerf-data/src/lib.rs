@@ -12,6 +12,7 @@ pub mod sampler;
 pub mod splits;
 pub mod subject;
 pub mod synthetic;
+pub mod visual_hull;
 
 pub use error::DataError;
 pub use info::{inspect, InspectOptions, Report};

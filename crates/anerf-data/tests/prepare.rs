@@ -546,3 +546,43 @@ fn a_frames_pose_file_poses_the_body_as_the_prepared_frame() {
     .to_string();
     assert!(err.contains("0.npy") && err.contains("joints"), "{err}");
 }
+
+/// The visual hull of a synthetic frame (masks rasterised from the body) holds every posed vertex and
+/// nothing far from the body.
+#[test]
+fn the_visual_hull_holds_the_posed_body_and_carves_the_box_corners() {
+    use anerf_data::synthetic::{write_subject, SyntheticSpec};
+    use anerf_data::visual_hull::VisualHull;
+
+    let dir = tempfile::tempdir().unwrap();
+    let root = dir.path().join("subject");
+    let written = write_subject(&SyntheticSpec::tiny(), &root).unwrap();
+    let subject = load_zju_mocap(&root, &LoadOptions::default()).unwrap();
+    let p = prepare(
+        &subject,
+        &PrepareOptions {
+            ratio: 1.0,
+            ..options(&dir.path().join("cache"))
+        },
+    )
+    .unwrap();
+    let views: Vec<ViewId> = p.views.clone();
+    let f = 3;
+    let hull = VisualHull::of_frame(&p, FrameId(f), &views, 1).unwrap();
+    let outside = written.posed_vertices[f]
+        .iter()
+        .filter(|&&x| !hull.contains(x))
+        .count();
+    assert_eq!(outside, 0, "posed vertices outside the hull");
+    // The corners of the padded body box lie off the body in most views.
+    let b = p.frame(FrameId(f)).unwrap().bounds;
+    for corner in 0..8 {
+        let pick = |bit: usize, lo: f32, hi: f32| if corner >> bit & 1 == 0 { lo } else { hi };
+        let x = Vec3::new(
+            pick(0, b.min.x, b.max.x),
+            pick(1, b.min.y, b.max.y),
+            pick(2, b.min.z, b.max.z),
+        );
+        assert!(!hull.contains(x), "box corner {x} is inside the hull");
+    }
+}

@@ -164,6 +164,13 @@ pub struct MeshArgs {
     /// Also repose the canonical mesh to these dataset frames, e.g. --frames 0,30,60.
     #[arg(long, value_delimiter = ',')]
     pub frames: Vec<usize>,
+    /// Also extract the reference's posed meshes of these dataset frames: a world-space grid over the
+    /// frame's box, warped back with the frame's blend weights, carved by the training views' masks.
+    #[arg(long, value_delimiter = ',')]
+    pub posed_frames: Vec<usize>,
+    /// Do not carve the posed meshes' grids with the training views' visual hull.
+    #[arg(long)]
+    pub no_carve: bool,
     #[command(flatten)]
     pub common: Common,
 }

@@ -7,6 +7,7 @@ use anerf_core::device::probe::checked_device;
 use anerf_core::model::{AnimatableNerf, ModelPreset};
 use anerf_core::{DeviceChoice, FrameId};
 use anerf_data::synthetic::{write_subject, SyntheticSpec};
+use anerf_data::visual_hull::VisualHull;
 use anerf_data::DatasetKind;
 use anerf_eval::report::{markdown_table, EvalRecorder, EvalSplit, Summary};
 use anyhow::{bail, Context, Result};
@@ -570,18 +571,8 @@ fn orbit_shots(
     size: Option<u32>,
 ) -> Result<(String, Vec<DatasetShot>)> {
     let frame = frame.map(FrameId).unwrap_or(exp.train_frames[0]);
-    if matches!(
-        exp.frame_code(frame)?.0,
-        anerf_core::model::FrameCode::Novel(_)
-    ) && model.novel_blend.is_none()
-    {
-        bail!("{frame} is a novel pose; run `anerf animate` first");
-    }
-    let bounds = exp
-        .prepared
-        .frame(frame)
-        .with_context(|| format!("{frame} was not prepared"))?
-        .bounds;
+    exp.check_renderable(frame, model)?;
+    let bounds = exp.frame_bounds(frame)?;
     let mut reference = exp.prepared.cameras[exp.train_views[0].0].clone();
     if let Some(s) = size {
         reference = reference.resized(s as f32 / reference.width as f32);
@@ -724,7 +715,7 @@ pub fn mesh(run_path: &Path, job: &crate::mesh::MeshJob, common: &Common) -> Res
     }
     let device = device(&config, common)?;
     let model = load_trained(&run, &config, &device)?;
-    let exp = Experiment::open(config, device.clone(), !common.quiet)?;
+    let mut exp = Experiment::open(config, device.clone(), !common.quiet)?;
     let appearance = exp.train_frames.len() / 2;
     let volume = exp.prepared.canonical_volume()?;
     let chunk = exp.config.eval.chunk;
@@ -783,5 +774,53 @@ pub fn mesh(run_path: &Path, job: &crate::mesh::MeshJob, common: &Common) -> Res
             dir.join(format!("frame_{f:06}.ply")).display()
         );
     }
+    for &f in &job.posed_frames {
+        let mesh = reference_posed_mesh(&model, &mut exp, FrameId(f), job)
+            .with_context(|| format!("the posed mesh of frame {f} (--posed-frames)"))?;
+        let path = dir.join(format!("posed_frame_{f:06}.ply"));
+        let view = MeshView::new(&mesh.vertices, &mesh.faces);
+        write_ply(&path, &view)?;
+        write_obj(&path.with_extension("obj"), &view)?;
+        println!(
+            "posed mesh of frame {f}: {} vertices → {}",
+            mesh.vertices.len(),
+            path.display()
+        );
+    }
     Ok(dir.join("canonical.ply"))
+}
+
+/// The reference's posed mesh of dataset frame `frame`, carved by the training views when `job.carve`.
+fn reference_posed_mesh(
+    model: &AnimatableNerf,
+    exp: &mut Experiment,
+    frame: FrameId,
+    job: &crate::mesh::MeshJob,
+) -> Result<anerf_core::mesh::TriMesh> {
+    exp.check_renderable(frame, model)?;
+    let inputs = exp.frame_inputs(frame)?;
+    let hull = if job.carve {
+        let radius = VisualHull::reference_radius(exp.config.dataset.ratio);
+        Some(VisualHull::of_frame(
+            &exp.prepared,
+            frame,
+            &exp.train_views,
+            radius,
+        )?)
+    } else {
+        None
+    };
+    let body = crate::mesh::PosedFrame {
+        inputs: &inputs,
+        volume: &exp.prepared.volume(frame)?,
+        bounds: exp.frame_bounds(frame)?,
+    };
+    crate::mesh::posed_mesh(
+        model,
+        exp.canonical(),
+        &body,
+        hull.as_ref(),
+        job,
+        exp.config.eval.chunk,
+    )
 }

@@ -5,7 +5,8 @@ use std::collections::HashMap;
 use std::path::Path;
 
 use anerf_core::geometry::skinning::BoneMatrices;
-use anerf_core::model::{CanonicalInputs, FrameCode, FrameInputs, ModelSizes};
+use anerf_core::geometry::Aabb;
+use anerf_core::model::{AnimatableNerf, CanonicalInputs, FrameCode, FrameInputs, ModelSizes};
 use anerf_core::{FrameId, ViewId};
 use anerf_data::prepare::{FrameSelection, NearestMethod};
 use anerf_data::{DatasetKind, LoadOptions, PrepareOptions, PreparedSubject};
@@ -206,6 +207,23 @@ impl Experiment {
             self.frames.insert(id, inputs);
         }
         Ok(self.frames[&id].clone())
+    }
+
+    /// World-space box of prepared frame `id` (metres).
+    pub fn frame_bounds(&self, id: FrameId) -> Result<Aabb> {
+        Ok(self
+            .prepared
+            .frame(id)
+            .with_context(|| format!("{id} was not prepared"))?
+            .bounds)
+    }
+
+    /// Fails when frame `id` is a novel pose and `model` has no stage-2 field for it yet.
+    pub fn check_renderable(&self, id: FrameId, model: &AnimatableNerf) -> Result<()> {
+        if matches!(self.frame_code(id)?.0, FrameCode::Novel(_)) && model.novel_blend.is_none() {
+            bail!("{id} is a novel pose; run `anerf animate` first");
+        }
+        Ok(())
     }
 
     /// The experiment's run folder under `runs`.

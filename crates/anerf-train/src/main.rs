@@ -84,6 +84,8 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
                 level: a.level,
                 smooth: a.smooth,
                 frames: a.frames,
+                posed_frames: a.posed_frames,
+                carve: !a.no_carve,
             };
             commands::mesh(&a.run, &job, &a.common)?;
         }

@@ -48,11 +48,7 @@ pub fn render_view(
     view: Option<ViewId>,
     chunk: usize,
 ) -> Result<RenderedImage> {
-    let bounds = exp
-        .prepared
-        .frame(frame)
-        .with_context(|| format!("{frame} was not prepared"))?
-        .bounds;
+    let bounds = exp.frame_bounds(frame)?;
     let images = match view {
         Some(v) => Some((exp.prepared.image(frame, v)?, exp.prepared.mask(frame, v)?)),
         None => None,

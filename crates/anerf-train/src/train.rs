@@ -457,11 +457,7 @@ pub fn train_stage2(
         let frame = exp.novel_frames[j];
         let target = PoseTarget {
             inputs: exp.frame_inputs(frame)?,
-            bounds: exp
-                .prepared
-                .frame(frame)
-                .with_context(|| format!("{frame} was not prepared"))?
-                .bounds,
+            bounds: exp.frame_bounds(frame)?,
         };
         let (loss, value) =
             stage2_loss(&model, &mut state.rng, cfg.batch, &target, exp.canonical());
