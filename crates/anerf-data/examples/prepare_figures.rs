@@ -125,6 +125,7 @@ fn main() {
         bounds: &bounds,
         image: &small,
         mask: &m,
+        edge: None,
     };
     let t = Instant::now();
     let n = 50;

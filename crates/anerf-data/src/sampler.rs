@@ -23,8 +23,8 @@ pub struct SamplerOptions {
     pub rays: usize,
     /// Share of rays drawn on the body mask (`body_sample_ratio`); the rest uniformly in the projected box.
     pub body_fraction: f32,
-    /// Never sample the band `dilate(mask) − erode(mask)` of a 5×5 kernel (`erode_edge`). The reference
-    /// computes it at full resolution before resizing; here it is computed on the working-resolution mask.
+    /// Never sample the band `dilate(mask) − erode(mask)` of a 5×5 kernel (`erode_edge`), marked on the
+    /// full-resolution mask by `prepare` as the reference does ([`ImageView::edge`]).
     pub skip_mask_edges: bool,
     /// Extra padding of the (already 0.05 m padded) box for near/far (metres).
     pub near_far_padding: f32,
@@ -52,6 +52,8 @@ pub enum SamplerError {
         image: (u32, u32),
         camera: (u32, u32),
     },
+    #[error("the mask-edge band has {band} pixels, but the camera has {pixels}")]
+    EdgeMismatch { band: usize, pixels: usize },
     #[error(
         "no pixel of the projected body box can be sampled (box behind or outside the camera?)"
     )]
@@ -70,6 +72,9 @@ pub struct ImageView<'a> {
     pub bounds: &'a Aabb,
     pub image: &'a Rgb32FImage,
     pub mask: &'a GrayImage,
+    /// The mask-edge band (row-major), as prepared from the full-resolution mask; `None`: computed from
+    /// `mask` at this resolution.
+    pub edge: Option<&'a [bool]>,
 }
 
 /// Draws training rays, deterministically from its seed; its whole state serialises, so a resumed run
@@ -113,7 +118,15 @@ impl RaySampler {
             .map(|p| if p[0] != 0 { BODY } else { BACKGROUND })
             .collect();
         if self.options.skip_mask_edges {
-            for (c, edge) in classes.iter_mut().zip(edge_band(view.mask)) {
+            let computed;
+            let band = match view.edge {
+                Some(band) => band,
+                None => {
+                    computed = edge_band(view.mask);
+                    &computed
+                }
+            };
+            for (c, &edge) in classes.iter_mut().zip(band) {
                 if edge {
                     *c = EDGE;
                 }
@@ -183,7 +196,8 @@ impl RaySampler {
         frame: FrameId,
         view: ViewId,
     ) -> Result<HostRays, SamplerError> {
-        let (image, mask) = (subject.image(frame, view)?, subject.mask(frame, view)?);
+        let image = subject.image(frame, view)?;
+        let (mask, edge) = subject.mask_and_edge(frame, view)?;
         let bounds = subject
             .frame(frame)
             .ok_or_else(|| DataError::invalid(&subject.dir, format!("{frame} was not prepared")))?
@@ -193,6 +207,7 @@ impl RaySampler {
             bounds: &bounds,
             image: &image,
             mask: &mask,
+            edge: Some(&edge),
         })
     }
 }
@@ -225,6 +240,13 @@ fn check_sizes(view: &ImageView) -> Result<(u32, u32), SamplerError> {
                 camera: cam,
             });
         }
+    }
+    let pixels = cam.0 as usize * cam.1 as usize;
+    if let Some(band) = view.edge.filter(|b| b.len() != pixels) {
+        return Err(SamplerError::EdgeMismatch {
+            band: band.len(),
+            pixels,
+        });
     }
     Ok(cam)
 }
@@ -358,6 +380,7 @@ pub fn image_rays(
                 bounds,
                 image: img,
                 mask,
+                edge: None,
             })?;
             let bound = box_mask(camera, bounds);
             let mut gt = img.clone();

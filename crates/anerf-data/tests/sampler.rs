@@ -98,9 +98,10 @@ fn training_rays_follow_the_reference_scheme() {
     let (frame, view) = (FrameId(1), ViewId(2));
     let cam = &p.cameras[view.0];
     let bounds = p.frame(frame).unwrap().bounds;
-    let (img, mask) = (p.image(frame, view).unwrap(), p.mask(frame, view).unwrap());
+    let img = p.image(frame, view).unwrap();
+    let (mask, band) = p.mask_and_edge(frame, view).unwrap();
     let bound = box_mask(cam, &bounds);
-    let band = edge_band(&mask);
+    assert!(band.iter().any(|&b| b), "the frame has a mask-edge band");
     let options = SamplerOptions {
         rays: 500,
         ..SamplerOptions::default()

@@ -33,8 +33,16 @@ pub fn read_rgb(path: &Path) -> Result<Rgb32FImage, DataError> {
 /// A foreground mask: 1 where the stored pixel is non-zero, 0 elsewhere (multi-channel masks use their
 /// first channel, as the reference's `imread(...)[..., 0]`).
 pub fn read_mask(path: &Path) -> Result<GrayImage, DataError> {
-    let img = open(path)?;
-    let luma = match img {
+    let mut m = read_gray(path)?;
+    for p in m.pixels_mut() {
+        p[0] = (p[0] != 0) as u8;
+    }
+    Ok(m)
+}
+
+/// A single-channel 8-bit image as stored (the first channel of a colour file).
+pub fn read_gray(path: &Path) -> Result<GrayImage, DataError> {
+    Ok(match open(path)? {
         image::DynamicImage::ImageLuma8(g) => g,
         other => {
             let rgb = other.into_rgb8();
@@ -42,12 +50,7 @@ pub fn read_mask(path: &Path) -> Result<GrayImage, DataError> {
                 image::Luma([rgb.get_pixel(x, y)[0]])
             })
         }
-    };
-    let mut m = luma;
-    for p in m.pixels_mut() {
-        p[0] = (p[0] != 0) as u8;
-    }
-    Ok(m)
+    })
 }
 
 /// Width and height from the file header, without decoding the pixels.

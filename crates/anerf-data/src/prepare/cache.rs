@@ -1,4 +1,4 @@
-//! The preparation cache: a folder per input fingerprint (`<cache>/v1/<hash>/`), files written atomically
+//! The preparation cache: a folder per input fingerprint (`<cache>/v2/<hash>/`), files written atomically
 //! (temporary file in the same folder, then rename), and a small binary format for volumes.
 
 use std::path::{Path, PathBuf};
@@ -11,7 +11,7 @@ use sha2::{Digest, Sha256};
 use crate::error::DataError;
 
 /// Bumped whenever the cache layout or any preparation algorithm changes.
-pub const CACHE_VERSION: &str = "v1";
+pub const CACHE_VERSION: &str = "v2";
 
 /// Writes `bytes` to `path` atomically ([`crate::atomic`]).
 pub fn atomic_write(path: &Path, bytes: &[u8]) -> Result<(), DataError> {
@@ -123,7 +123,7 @@ pub fn read_volume(path: &Path) -> Result<BlendWeightVolume, DataError> {
     BlendWeightVolume::new(bounds, dims, joints, data).map_err(|e| DataError::invalid(path, e))
 }
 
-/// `<cache>/v1/<hash>`.
+/// `<cache>/v2/<hash>`.
 pub fn entry_dir(cache: &Path, hash: &str) -> PathBuf {
     cache.join(CACHE_VERSION).join(hash)
 }

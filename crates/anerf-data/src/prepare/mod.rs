@@ -29,6 +29,7 @@ use self::undistort::UndistortMap;
 pub use self::volumes::{compute_volume, NearestMethod, VolumeGrid};
 use crate::error::DataError;
 use crate::formats::{self, images};
+use crate::sampler::edge_band;
 use crate::subject::{DatasetKind, SkinningWeights, Subject};
 
 /// Which frames to prepare: `start..end` (end exclusive, `None` = all) every `step`-th, by position in
@@ -61,7 +62,7 @@ impl FrameSelection {
 /// Everything `prepare` does, as one plain settings record (saved in the cache's manifest).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct PrepareOptions {
-    /// Root of the cache; results go to `<cache_dir>/v1/<fingerprint>/`.
+    /// Root of the cache; results go to `<cache_dir>/v2/<fingerprint>/`.
     pub cache_dir: PathBuf,
     /// Image scale (0.5 for ZJU-MoCap's 1024² → 512², 1 for H36M); `K[:2] *= ratio` as the reference.
     pub ratio: f32,
@@ -163,6 +164,10 @@ struct Manifest {
 
 const MANIFEST: &str = "manifest.json";
 
+/// Bits of a prepared mask pixel: on the body, and in the reference's mask-edge band.
+const MASK_BODY: u8 = 0x80;
+const MASK_EDGE: u8 = 0x40;
+
 fn image_name(frame: usize, view: usize) -> String {
     format!("{frame:06}_{view:02}.png")
 }
@@ -240,7 +245,22 @@ impl PreparedSubject {
 
     /// Undistorted mask at the working resolution: 1 = body, 0 = background.
     pub fn mask(&self, frame: FrameId, view: ViewId) -> Result<GrayImage, DataError> {
-        images::read_mask(&self.dir.join("masks").join(image_name(frame.0, view.0)))
+        Ok(self.mask_and_edge(frame, view)?.0)
+    }
+
+    /// The mask (as [`Self::mask`]) and the reference's mask-edge band (row-major): `dilate − erode` with a
+    /// 5×5 kernel on the full-resolution mask, carried through undistortion and resizing with the mask.
+    pub fn mask_and_edge(
+        &self,
+        frame: FrameId,
+        view: ViewId,
+    ) -> Result<(GrayImage, Vec<bool>), DataError> {
+        let mut mask =
+            images::read_gray(&self.dir.join("masks").join(image_name(frame.0, view.0)))?;
+        let edge = mask.pixels().map(|p| p[0] & MASK_EDGE != 0).collect();
+        mask.pixels_mut()
+            .for_each(|p| p[0] = u8::from(p[0] & MASK_BODY != 0));
+        Ok((mask, edge))
     }
 }
 
@@ -386,14 +406,19 @@ pub fn prepare(subject: &Subject, options: &PrepareOptions) -> Result<PreparedSu
         if !mask_out.is_file() {
             let mask = images::read_mask(&rec.masks[v])?;
             check_size(&rec.masks[v], mask.dimensions(), raw)?;
-            let mask = match &maps[v] {
-                Some(m) => m.remap_nearest(&mask),
-                None => mask,
+            // The reference marks the edge band on the full-resolution mask, before undistorting and
+            // resizing; both travel together as the two bits of one image.
+            let band = edge_band(&mask);
+            let mut both = mask;
+            for (p, edge) in both.pixels_mut().zip(band) {
+                p[0] = if p[0] != 0 { MASK_BODY } else { 0 } | if edge { MASK_EDGE } else { 0 };
+            }
+            let both = match &maps[v] {
+                Some(m) => m.remap_nearest(&both),
+                None => both,
             };
-            let mut mask = resize_nearest(&mask, work.width, work.height);
-            mask.pixels_mut()
-                .for_each(|p| p[0] = if p[0] != 0 { 255 } else { 0 });
-            atomic_write(&mask_out, &png_gray(&mask))?;
+            let both = resize_nearest(&both, work.width, work.height);
+            atomic_write(&mask_out, &png_gray(&both))?;
         }
         bar.inc(1);
         Ok::<(), DataError>(())
