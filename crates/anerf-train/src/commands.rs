@@ -467,41 +467,8 @@ pub fn render(run_path: &Path, job: RenderJob, common: &Common) -> Result<PathBu
     };
     let model = load_trained(&run, &config, &device)?;
     let mut exp = Experiment::open(config, device, !common.quiet)?;
-    let chunk = exp.config.eval.chunk;
     let (name, frames) = match job {
-        RenderJob::PoseFiles { path, view } => {
-            let view = view.unwrap_or(exp.train_views[0].0);
-            let camera = dataset_camera(&exp, view)?;
-            let sequence = crate::poses::PoseSequence::load(&path, &exp.prepared)?;
-            let targets = sequence.targets(exp.novel_appearance(), &exp.device);
-            let model = crate::train::fit_pose_codes(
-                model,
-                &targets,
-                exp.canonical(),
-                &exp.config.animate,
-                exp.config.seed,
-                !common.quiet,
-            )?;
-            let bar = image_bar(targets.len(), common);
-            let mut frames = Vec::with_capacity(targets.len());
-            for (target, file) in targets.iter().zip(&sequence.files) {
-                let shot = Shot {
-                    inputs: &target.inputs,
-                    bounds: target.bounds,
-                    camera: &camera,
-                    ground_truth: None,
-                };
-                let image = render_shot(&model, exp.canonical(), &shot, chunk, &exp.device)
-                    .with_context(|| format!("rendering the pose of {}", file.display()))?;
-                frames.push(image.prediction);
-                bar.inc(1);
-            }
-            bar.finish_and_clear();
-            let stem = path
-                .file_stem()
-                .map_or("poses".into(), |s| s.to_string_lossy().into_owned());
-            (format!("poses_{stem}_view{view:02}"), frames)
-        }
+        RenderJob::PoseFiles { path, view } => render_pose_files(model, &exp, &path, view, common)?,
         RenderJob::Orbit { frame, views, size } => {
             let (name, shots) = orbit_shots(&exp, &model, frame, views, size)?;
             (
@@ -539,6 +506,54 @@ pub fn render(run_path: &Path, job: RenderJob, common: &Common) -> Result<PathBu
         gif.display()
     );
     Ok(gif)
+}
+
+/// Fits a stage-2 field for the poses of `path` and renders them from dataset camera `view` (default: the
+/// first training view): the output name and the images.
+fn render_pose_files(
+    model: AnimatableNerf,
+    exp: &Experiment,
+    path: &Path,
+    view: Option<usize>,
+    common: &Common,
+) -> Result<(String, Vec<anerf_eval::RgbImageF32>)> {
+    let view = view.unwrap_or(exp.train_views[0].0);
+    let camera = dataset_camera(exp, view)?;
+    let sequence = crate::poses::PoseSequence::load(path, &exp.prepared)?;
+    let targets = sequence.targets(exp.novel_appearance(), &exp.device);
+    let model = crate::train::fit_pose_codes(
+        model,
+        &targets,
+        exp.canonical(),
+        &exp.config.animate,
+        exp.config.seed,
+        !common.quiet,
+    )?;
+    let bar = image_bar(targets.len(), common);
+    let mut frames = Vec::with_capacity(targets.len());
+    for (target, file) in targets.iter().zip(&sequence.files) {
+        let shot = Shot {
+            inputs: &target.inputs,
+            bounds: target.bounds,
+            camera: &camera,
+            ground_truth: None,
+        };
+        let image = render_shot(
+            &model,
+            exp.canonical(),
+            &shot,
+            exp.config.eval.chunk,
+            &exp.device,
+        )
+        .with_context(|| format!("rendering the pose of {}", file.display()))?;
+        frames.push(image.prediction);
+        bar.inc(1);
+    }
+    bar.finish_and_clear();
+    let stem = path
+        .file_stem()
+        .map_or("poses".into(), |s| s.to_string_lossy().into_owned());
+    Ok((format!("poses_{stem}_view{view:02}"), frames))
 }
 
 /// A dataset frame seen by a camera.
