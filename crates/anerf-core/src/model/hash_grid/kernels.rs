@@ -130,9 +130,43 @@ fn chunk_rows(n: usize) -> usize {
     n.div_ceil(4 * rayon::current_num_threads()).max(MIN_CHUNK)
 }
 
+/// The feature width `F` of a kernel instantiated with `WIDTH` (the width as a constant, so that the
+/// per-corner loops unroll) or `WIDTH = 0` (read from `spec`, for uncommon widths).
+#[inline(always)]
+fn features<const WIDTH: usize>(spec: &GridSpec) -> usize {
+    debug_assert!(WIDTH == 0 || WIDTH == spec.features);
+    if WIDTH == 0 {
+        spec.features
+    } else {
+        WIDTH
+    }
+}
+
+/// Calls `$kernel::<F>` with the spec's feature width as a constant where it is a common one.
+macro_rules! with_width {
+    ($spec:expr, $kernel:ident ( $($arg:expr),* )) => {
+        match $spec.features {
+            1 => $kernel::<1>($($arg),*),
+            2 => $kernel::<2>($($arg),*),
+            4 => $kernel::<4>($($arg),*),
+            8 => $kernel::<8>($($arg),*),
+            _ => $kernel::<0>($($arg),*),
+        }
+    };
+}
+
 /// `out[i, l·F + f] = Σ_c w_c(p_i) · table[l·T + row_c, f]`.
 pub fn encode(points: &[f32], table: &[f32], spec: &GridSpec, out: &mut [f32]) {
-    let (f, width) = (spec.features, spec.output_dim());
+    with_width!(spec, encode_with(points, table, spec, out))
+}
+
+fn encode_with<const WIDTH: usize>(
+    points: &[f32],
+    table: &[f32],
+    spec: &GridSpec,
+    out: &mut [f32],
+) {
+    let (f, width) = (features::<WIDTH>(spec), spec.output_dim());
     let levels = spec.level_constants();
     let rows = chunk_rows(points.len() / 3);
     out.par_chunks_mut(width * rows)
@@ -157,7 +191,16 @@ pub fn encode(points: &[f32], table: &[f32], spec: &GridSpec, out: &mut [f32]) {
 /// `grad_table[l·T + row, f] = Σ_i Σ_c [row_c(p_i) = row] · w_c(p_i) · grad[i, l·F + f]`; `grad_table` must
 /// be zero on entry. Each level's rows belong to one task, so the scatter needs no atomics.
 pub fn table_grad(points: &[f32], grad: &[f32], spec: &GridSpec, grad_table: &mut [f32]) {
-    let (f, width) = (spec.features, spec.output_dim());
+    with_width!(spec, table_grad_with(points, grad, spec, grad_table))
+}
+
+fn table_grad_with<const WIDTH: usize>(
+    points: &[f32],
+    grad: &[f32],
+    spec: &GridSpec,
+    grad_table: &mut [f32],
+) {
+    let (f, width) = (features::<WIDTH>(spec), spec.output_dim());
     let levels = spec.level_constants();
     grad_table
         .par_chunks_mut(spec.table_size * f)
@@ -188,7 +231,20 @@ pub fn points_grad(
     spec: &GridSpec,
     grad_points: &mut [f32],
 ) {
-    let (f, width) = (spec.features, spec.output_dim());
+    with_width!(
+        spec,
+        points_grad_with(points, table, grad, spec, grad_points)
+    )
+}
+
+fn points_grad_with<const WIDTH: usize>(
+    points: &[f32],
+    table: &[f32],
+    grad: &[f32],
+    spec: &GridSpec,
+    grad_points: &mut [f32],
+) {
+    let (f, width) = (features::<WIDTH>(spec), spec.output_dim());
     let levels = spec.level_constants();
     let rows = chunk_rows(points.len() / 3);
     grad_points
