@@ -2,8 +2,11 @@
 //! grid, looked up trilinearly. The reference stores them as `(Nx, Ny, Nz, K+1)` float32 arrays
 //! (`lbs/bweights/{i}.npy` in pose space, `lbs/tbw.npy` in canonical space).
 
+use std::sync::Arc;
+
 use burn::prelude::*;
 use glam::Vec3;
+use rayon::prelude::*;
 
 use super::super::geometry::Aabb;
 
@@ -119,6 +122,14 @@ impl BlendWeightVolume {
         out
     }
 
+    /// The distance channel alone at one point (metres): what culling reads for every sample.
+    pub fn distance_at(&self, p: Vec3) -> f32 {
+        self.corners(p)
+            .iter()
+            .map(|(idx, w)| w * self.node(idx[0], idx[1], idx[2])[self.num_joints])
+            .sum()
+    }
+
     /// The 8 surrounding nodes and their trilinear weights (border clamped).
     fn corners(&self, p: Vec3) -> [([usize; 3], f32); 8] {
         let mut base = [0usize; 3];
@@ -154,6 +165,7 @@ impl BlendWeightVolume {
         VolumeTensor {
             table: crate::tensor::from_rows(&self.data, nodes, self.channels(), device),
             distance: crate::tensor::from_rows(&distance, nodes, 1, device),
+            host: Arc::new(self.clone()),
             min: self.bounds.min,
             size: self.bounds.size(),
             dims: self.dims,
@@ -163,11 +175,14 @@ impl BlendWeightVolume {
 }
 
 /// A [`BlendWeightVolume`] on a device: a `[nodes, K+1]` table read with one gather for all 8 corners, and
-/// its distance channel `[nodes, 1]` alone for culling (a 25th of the gather).
+/// its distance channel `[nodes, 1]` alone (a 25th of the gather); a host copy serves the renderer's culling and
+/// prior weights, which need no gradient (it doubles the volume's memory, 8 MiB per frame of the demo).
 #[derive(Debug, Clone)]
 pub struct VolumeTensor {
     table: Tensor<2>,
     distance: Tensor<2>,
+    /// The volume on the host (shared by clones), for the renderer's lookups at constant points.
+    host: Arc<BlendWeightVolume>,
     min: Vec3,
     size: Vec3,
     dims: [usize; 3],
@@ -197,6 +212,37 @@ impl VolumeTensor {
             weights: values.clone().narrow(1, 0, self.num_joints),
             distance: values.narrow(1, self.num_joints, 1),
         }
+    }
+
+    /// The distance to the body at one point of the volume's frame (metres), read on the host: the renderer
+    /// culls every sample with it before anything reaches the device.
+    pub fn distance_at(&self, p: Vec3) -> f32 {
+        self.host.distance_at(p)
+    }
+
+    /// Prior weights `[N, K]` at host points (the volume's frame, metres) that need no gradient, such as the
+    /// renderer's samples: interpolated on the host (as [`BlendWeightVolume::sample`]) and uploaded, instead
+    /// of the few dozen tensor operations of [`Self::sample`].
+    pub fn weights_at(&self, points: &[Vec3]) -> Tensor<2> {
+        let k = self.num_joints;
+        let mut weights = vec![0.0; points.len() * k];
+        // Blocks of points per rayon task: one task per point costs more than its lookup.
+        const BLOCK: usize = 256;
+        weights
+            .par_chunks_mut(BLOCK * k.max(1))
+            .zip(points.par_chunks(BLOCK))
+            .for_each(|(out, points)| {
+                for (out, &p) in out.chunks_exact_mut(k.max(1)).zip(points) {
+                    for (idx, w) in self.host.corners(p) {
+                        let node = &self.host.node(idx[0], idx[1], idx[2])[..k];
+                        for (o, v) in out.iter_mut().zip(node) {
+                            *o += w * v;
+                        }
+                    }
+                }
+            });
+        let n = points.len();
+        Tensor::from_data(TensorData::new(weights, [n, k]), &self.table.device())
     }
 
     /// The distance to the body alone, `[N, 1]` metres: what culling needs, for every sample.
@@ -313,6 +359,13 @@ mod tests {
                     && (w[2 * i + 1] - e[1]).abs() < 1e-5
                     && (d[i] - e[2]).abs() < 1e-5
             );
+            // The host copy of the distance channel that culling reads.
+            assert!((tensor.distance_at(*p) - d[i]).abs() < 1e-5);
+        }
+        // The renderer's lookup at constant points: host corners, one gather.
+        let host = to_host(tensor.weights_at(&all));
+        for (h, t) in host.iter().zip(&w) {
+            assert!((h - t).abs() < 1e-6, "{host:?} vs {w:?}");
         }
     }
 

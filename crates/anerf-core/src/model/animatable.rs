@@ -3,13 +3,15 @@
 
 use burn::prelude::*;
 use burn::tensor::IndexingUpdateOp;
+use glam::Vec3;
+use rayon::prelude::*;
 
 use super::blend::BlendWeightField;
 use super::nerf::CanonicalNerf;
 use super::occupancy::OccupancyGrid;
 use super::{ConsistencyLoss, ModelConfig};
 use crate::body::VolumeTensor;
-use crate::geometry::skinning::{world_to_pose, BoneMatrices};
+use crate::geometry::skinning::BoneMatrices;
 use crate::geometry::{Aabb, GlobalTransform};
 use crate::render::{blend_consistency, composite, stratified_depths, RayBatch};
 use crate::tensor::to_host;
@@ -286,7 +288,9 @@ impl AnimatableNerf {
     /// `with_consistency` also returns the inputs of the blend-weight consistency loss.
     ///
     /// Samples whose distance to the body (the frame volume's last channel) is at least `cull_distance` never
-    /// reach an MLP: the survivors are gathered, shaded and scattered back; culled samples have zero density.
+    /// reach an MLP: culling and the survivors' prior weights are computed on the host ([`cull_samples`],
+    /// [`VolumeTensor::weights_at`]), the survivors uploaded, shaded and scattered back; culled samples have
+    /// zero density.
     /// The sample closest to the body is always kept, so the MLP batch is never empty. With an occupancy grid
     /// ([`Self::rebuild_occupancy`]), survivors whose warped position falls in an empty canonical cell skip the
     /// canonical NeRF (and the canonical blend weights) too: one more read-back of their canonical positions.
@@ -303,25 +307,25 @@ impl AnimatableNerf {
         let r = rays.len();
         let n = r * s;
         let depths = stratified_depths(rays.near.clone(), rays.far.clone(), s, jitter);
-        let points_world = (rays.origins.clone().unsqueeze_dim::<3>(1)
-            + rays.directions.clone().unsqueeze_dim::<3>(1) * depths.clone().unsqueeze_dim::<3>(2))
-        .reshape([n, 3]);
-        let points = world_to_pose(points_world, &frame.global);
-        let dirs = rays
-            .directions
-            .clone()
-            .unsqueeze_dim::<3>(1)
-            .repeat_dim(1, s)
-            .reshape([n, 3]);
-        // Culling reads only the distance channel for every sample; the prior weights are read for the
-        // survivors alone.
-        let distance = frame.volume.sample_distance(points.clone());
-        let keep = surviving_indices(&to_host(distance), self.config.cull_distance);
+        // Culling runs on the host: only the survivors' positions and directions are uploaded.
+        let survivors = cull_samples(
+            &SampleRays {
+                origins: &to_host(rays.origins.clone()),
+                directions: &to_host(rays.directions.clone()),
+                depths: &to_host(depths.clone()),
+                samples: s,
+            },
+            &frame.global,
+            &frame.volume,
+            self.config.cull_distance,
+        );
+        let keep = survivors.index;
         let m = keep.len();
         let index = Tensor::<1, Int>::from_data(TensorData::new(keep.clone(), [m]), &device);
-        let points = points.select(0, index.clone());
-        let dirs = dirs.select(0, index.clone());
-        let prior = frame.volume.sample(points.clone()).weights;
+        let prior = frame.volume.weights_at(&survivors.points);
+        let flat: Vec<f32> = survivors.points.iter().flat_map(|p| p.to_array()).collect();
+        let points = Tensor::from_data(TensorData::new(flat, [m, 3]), &device);
+        let dirs = Tensor::from_data(TensorData::new(survivors.directions, [m, 3]), &device);
         let (weights, canonical_points) = self.warp(points, prior, frame);
         let (index, weights, canonical_points, dirs) = match &self.occupancy {
             Some(grid) => {
@@ -374,6 +378,59 @@ impl AnimatableNerf {
             occupied_samples: occupied,
             total_samples: n,
         }
+    }
+}
+
+/// The samples along a batch of rays, on the host.
+pub struct SampleRays<'a> {
+    /// `[R·3]` world-space origins (metres) and unit directions.
+    pub origins: &'a [f32],
+    pub directions: &'a [f32],
+    /// `[R·S]` depths along each ray (metres).
+    pub depths: &'a [f32],
+    /// `S`.
+    pub samples: usize,
+}
+
+/// The samples that survive culling: their flat indices `ray · S + sample`, pose-space positions `[M]`
+/// (metres) and world-space view directions `[M·3]`.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Survivors {
+    pub index: Vec<i64>,
+    pub points: Vec<Vec3>,
+    pub directions: Vec<f32>,
+}
+
+/// Places the samples of `rays` in pose space (`x_pose = R_hᵀ (o + z·d − T_h)`) and keeps those closer than
+/// `threshold` to the body by the host copy of the frame volume's distance channel ([`surviving_indices`]).
+pub fn cull_samples(
+    rays: &SampleRays,
+    global: &GlobalTransform,
+    volume: &VolumeTensor,
+    threshold: f32,
+) -> Survivors {
+    let rotation_t = global.rotation().transpose();
+    let s = rays.samples;
+    let ray_vec = |v: &[f32], r: usize| Vec3::from_slice(&v[3 * r..3 * r + 3]);
+    let pose = |i: usize| {
+        let r = i / s;
+        rotation_t
+            * (ray_vec(rays.origins, r) + ray_vec(rays.directions, r) * rays.depths[i] - global.th)
+    };
+    let distance: Vec<f32> = (0..rays.depths.len())
+        .into_par_iter()
+        .map(|i| volume.distance_at(pose(i)))
+        .collect();
+    let index = surviving_indices(&distance, threshold);
+    let points = index.iter().map(|&i| pose(i as usize)).collect();
+    let directions = index
+        .iter()
+        .flat_map(|&i| ray_vec(rays.directions, i as usize / s).to_array())
+        .collect();
+    Survivors {
+        index,
+        points,
+        directions,
     }
 }
 

@@ -39,18 +39,35 @@ impl GridSpec {
             .collect()
     }
 
-    /// The eight corners around point `p` (metres) at `level`: their rows in the level's table (corner `c` has
-    /// bit `a` set on the high side along axis `a`), and per axis the position in the cell and whether the point
-    /// lies strictly inside the grid (outside, the position is clamped and its derivative is zero).
+    /// Point `p` (metres) in the grid's unit cube, clamped, and per axis whether it lies strictly inside:
+    /// the same at every level, so the kernels compute it once per point.
     #[inline(always)]
-    fn corners(&self, level: &Level, p: &[f32]) -> Corners {
-        let mut frac = [0.0f32; 3];
+    fn unit(&self, p: &[f32]) -> Unit {
+        let mut u = [0.0f32; 3];
         let mut inside = [false; 3];
+        for a in 0..3 {
+            let v = (p[a] + self.half_extent) / (2.0 * self.half_extent);
+            inside[a] = v > 0.0 && v < 1.0;
+            u[a] = v.clamp(0.0, 1.0);
+        }
+        Unit { u, inside }
+    }
+
+    /// [`Self::unit`] of every point of `points` (`[N, 3]`).
+    fn units(&self, points: &[f32]) -> Vec<Unit> {
+        points.chunks_exact(3).map(|p| self.unit(p)).collect()
+    }
+
+    /// The eight corners around a point (its [`Unit`] position) at `level`: their rows in the level's table
+    /// (corner `c` has bit `a` set on the high side along axis `a`), and per axis the position in the cell and
+    /// whether the point lies strictly inside the grid (outside, the position is clamped and its derivative is
+    /// zero).
+    #[inline(always)]
+    fn corners(&self, level: &Level, unit: &Unit) -> Corners {
+        let mut frac = [0.0f32; 3];
         let mut base = [0u32; 3];
         for a in 0..3 {
-            let u = (p[a] + self.half_extent) / (2.0 * self.half_extent);
-            inside[a] = u > 0.0 && u < 1.0;
-            let x = u.clamp(0.0, 1.0) * level.res_f;
+            let x = unit.u[a] * level.res_f;
             // `x ≥ 0`, so truncation is the floor (and needs no libm call on baseline x86-64).
             let i0 = (x as u32).min(level.res - 1);
             base[a] = i0;
@@ -82,8 +99,19 @@ impl GridSpec {
                 ((x ^ y ^ z) & mask) as usize
             }
         });
-        Corners { rows, frac, inside }
+        Corners {
+            rows,
+            frac,
+            inside: unit.inside,
+        }
     }
+}
+
+/// A point's clamped position in the grid's unit cube (see [`GridSpec::unit`]).
+#[derive(Debug, Clone, Copy)]
+struct Unit {
+    u: [f32; 3],
+    inside: [bool; 3],
 }
 
 /// The corners of a point's cell at one level (see [`GridSpec::corners`]).
@@ -130,20 +158,55 @@ fn chunk_rows(n: usize) -> usize {
     n.div_ceil(4 * rayon::current_num_threads()).max(MIN_CHUNK)
 }
 
+/// The feature width `F` of a kernel instantiated with `WIDTH` (the width as a constant, so that the
+/// per-corner loops unroll) or `WIDTH = 0` (read from `spec`, for uncommon widths).
+#[inline(always)]
+fn features<const WIDTH: usize>(spec: &GridSpec) -> usize {
+    debug_assert!(WIDTH == 0 || WIDTH == spec.features);
+    if WIDTH == 0 {
+        spec.features
+    } else {
+        WIDTH
+    }
+}
+
+/// Calls `$kernel::<F>` with the spec's feature width as a constant where it is a common one.
+macro_rules! with_width {
+    ($spec:expr, $kernel:ident ( $($arg:expr),* )) => {
+        match $spec.features {
+            1 => $kernel::<1>($($arg),*),
+            2 => $kernel::<2>($($arg),*),
+            4 => $kernel::<4>($($arg),*),
+            8 => $kernel::<8>($($arg),*),
+            _ => $kernel::<0>($($arg),*),
+        }
+    };
+}
+
 /// `out[i, l·F + f] = Σ_c w_c(p_i) · table[l·T + row_c, f]`.
 pub fn encode(points: &[f32], table: &[f32], spec: &GridSpec, out: &mut [f32]) {
-    let (f, width) = (spec.features, spec.output_dim());
+    with_width!(spec, encode_with(points, table, spec, out))
+}
+
+fn encode_with<const WIDTH: usize>(
+    points: &[f32],
+    table: &[f32],
+    spec: &GridSpec,
+    out: &mut [f32],
+) {
+    let (f, width) = (features::<WIDTH>(spec), spec.output_dim());
     let levels = spec.level_constants();
     let rows = chunk_rows(points.len() / 3);
     out.par_chunks_mut(width * rows)
         .zip(points.par_chunks(3 * rows))
         .for_each(|(block, points)| {
+            let units = spec.units(points);
             for (l, level) in levels.iter().enumerate() {
                 let level_table = &table[l * spec.table_size * f..(l + 1) * spec.table_size * f];
-                for (row, p) in block.chunks_exact_mut(width).zip(points.chunks_exact(3)) {
+                for (row, unit) in block.chunks_exact_mut(width).zip(&units) {
                     let feats = &mut row[l * f..(l + 1) * f];
                     feats.fill(0.0);
-                    let corners = spec.corners(level, p);
+                    let corners = spec.corners(level, unit);
                     for (&r, w) in corners.rows.iter().zip(corners.weights()) {
                         for (o, t) in feats.iter_mut().zip(&level_table[r * f..(r + 1) * f]) {
                             *o += w * t;
@@ -157,19 +220,29 @@ pub fn encode(points: &[f32], table: &[f32], spec: &GridSpec, out: &mut [f32]) {
 /// `grad_table[l·T + row, f] = Σ_i Σ_c [row_c(p_i) = row] · w_c(p_i) · grad[i, l·F + f]`; `grad_table` must
 /// be zero on entry. Each level's rows belong to one task, so the scatter needs no atomics.
 pub fn table_grad(points: &[f32], grad: &[f32], spec: &GridSpec, grad_table: &mut [f32]) {
-    let (f, width) = (spec.features, spec.output_dim());
+    with_width!(spec, table_grad_with(points, grad, spec, grad_table))
+}
+
+fn table_grad_with<const WIDTH: usize>(
+    points: &[f32],
+    grad: &[f32],
+    spec: &GridSpec,
+    grad_table: &mut [f32],
+) {
+    let (f, width) = (features::<WIDTH>(spec), spec.output_dim());
     let levels = spec.level_constants();
+    let units = spec.units(points);
     grad_table
         .par_chunks_mut(spec.table_size * f)
         .zip(&levels)
         .enumerate()
         .for_each(|(l, (rows, level))| {
-            for (p, g) in points.chunks_exact(3).zip(grad.chunks_exact(width)) {
+            for (unit, g) in units.iter().zip(grad.chunks_exact(width)) {
                 let g = &g[l * f..(l + 1) * f];
                 if g.iter().all(|&v| v == 0.0) {
                     continue;
                 }
-                let corners = spec.corners(level, p);
+                let corners = spec.corners(level, unit);
                 for (&r, w) in corners.rows.iter().zip(corners.weights()) {
                     for (t, gv) in rows[r * f..(r + 1) * f].iter_mut().zip(g) {
                         *t += w * gv;
@@ -188,7 +261,20 @@ pub fn points_grad(
     spec: &GridSpec,
     grad_points: &mut [f32],
 ) {
-    let (f, width) = (spec.features, spec.output_dim());
+    with_width!(
+        spec,
+        points_grad_with(points, table, grad, spec, grad_points)
+    )
+}
+
+fn points_grad_with<const WIDTH: usize>(
+    points: &[f32],
+    table: &[f32],
+    grad: &[f32],
+    spec: &GridSpec,
+    grad_points: &mut [f32],
+) {
+    let (f, width) = (features::<WIDTH>(spec), spec.output_dim());
     let levels = spec.level_constants();
     let rows = chunk_rows(points.len() / 3);
     grad_points
@@ -197,15 +283,16 @@ pub fn points_grad(
         .zip(grad.par_chunks(width * rows))
         .for_each(|((block, points), grad)| {
             block.fill(0.0);
+            let units = spec.units(points);
             for (l, level) in levels.iter().enumerate() {
                 let level_table = &table[l * spec.table_size * f..(l + 1) * spec.table_size * f];
-                for ((acc, p), g) in block
+                for ((acc, unit), g) in block
                     .chunks_exact_mut(3)
-                    .zip(points.chunks_exact(3))
+                    .zip(&units)
                     .zip(grad.chunks_exact(width))
                 {
                     let g = &g[l * f..(l + 1) * f];
-                    let corners = spec.corners(level, p);
+                    let corners = spec.corners(level, unit);
                     let mut d = [0.0f32; 3];
                     for (&r, dw) in corners.rows.iter().zip(corners.weight_derivatives()) {
                         let dot: f32 = g

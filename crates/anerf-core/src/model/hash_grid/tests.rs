@@ -57,11 +57,27 @@ fn resolutions_grow_geometrically_and_coarse_levels_are_dense() {
         .contains("model.grid.base_resolution"));
 }
 
+/// The test grid with `features` per level: 2 runs the kernels' constant-width instance, 3 the instance that
+/// reads the width at run time.
+fn spec_with(features: usize) -> GridSpec {
+    HashGridConfig {
+        features_per_level: features,
+        ..config()
+    }
+    .spec()
+}
+
 #[test]
 fn kernels_match_the_reference_forward() {
+    for features in [2, 3] {
+        forward_matches(features);
+    }
+}
+
+fn forward_matches(features: usize) {
     let device = cpu_device();
     assert!(extension::has_kernels(&device));
-    let spec = config().spec();
+    let spec = spec_with(features);
     let n = 200;
     let p = from_rows(&points(n), n, 3, &device);
     let table = Tensor::<2>::random(
@@ -77,20 +93,26 @@ fn kernels_match_the_reference_forward() {
     }
 }
 
-/// The gradients of `Σ c ⊙ encode(x)` with respect to the points and the table.
-fn gradients(use_kernels: bool, n: usize) -> (Vec<f32>, Vec<f32>) {
+/// The gradients of `Σ c ⊙ encode(x)` with respect to the points and the table. The table and `c` are
+/// deterministic functions of the index (not the device's global RNG, which tests running in parallel
+/// would draw from between the two calls compared).
+fn gradients(use_kernels: bool, n: usize, features: usize) -> (Vec<f32>, Vec<f32>) {
     let device = cpu_device().autodiff();
-    let spec = config().spec();
+    let spec = spec_with(features);
     let p = from_rows(&points(n), n, 3, &device).require_grad();
-    let table = Tensor::<2>::random(
-        [spec.table_rows(), spec.features],
-        Distribution::Uniform(-1.0, 1.0),
+    let values = |len: usize, scale: f32| -> Vec<f32> {
+        (0..len).map(|i| (i as f32 * scale).sin()).collect()
+    };
+    let table = from_rows(
+        &values(spec.table_rows() * spec.features, 0.37),
+        spec.table_rows(),
+        spec.features,
         &device,
     );
-    device.seed(3);
-    let coeff = Tensor::<2>::random(
-        [n, spec.output_dim()],
-        Distribution::Normal(0.0, 1.0),
+    let coeff = from_rows(
+        &values(n * spec.output_dim(), 0.91),
+        n,
+        spec.output_dim(),
         &device,
     );
     let table = table.require_grad();
@@ -108,10 +130,14 @@ fn gradients(use_kernels: bool, n: usize) -> (Vec<f32>, Vec<f32>) {
 
 #[test]
 fn kernels_match_the_reference_backward() {
-    cpu_device().autodiff().seed(11);
-    let (kp, kt) = gradients(true, 150);
-    cpu_device().autodiff().seed(11);
-    let (rp, rt) = gradients(false, 150);
+    for features in [2, 3] {
+        backward_matches(features);
+    }
+}
+
+fn backward_matches(features: usize) {
+    let (kp, kt) = gradients(true, 150, features);
+    let (rp, rt) = gradients(false, 150, features);
     for (i, (a, b)) in kp.iter().zip(&rp).enumerate() {
         assert!(
             (a - b).abs() < 1e-3 * (1.0 + b.abs()),
