@@ -39,6 +39,25 @@ pub struct RadianceSample {
     pub rgb: Tensor<2>,
 }
 
+/// Raw density every point starts with under a hash grid (per metre; see [`density_head`]).
+const HASH_GRID_INITIAL_DENSITY: f32 = 1.0;
+
+/// The density head. A hash grid's tables start near zero, so at initialisation every point gets the same
+/// raw density, the head's bias: a negative draw leaves the ReLU dead everywhere and training never starts
+/// (the demo subject with seed 1 stayed black). With a hash grid the bias starts at
+/// [`HASH_GRID_INITIAL_DENSITY`] instead; frequency encodings keep PyTorch's initialisation.
+fn density_head(width: usize, hash_grid: bool, device: &Device) -> Linear {
+    let mut head = torch_linear(width, 1, device);
+    if hash_grid {
+        head.bias = Some(burn::module::Param::from_tensor(Tensor::full(
+            [1],
+            HASH_GRID_INITIAL_DENSITY,
+            device,
+        )));
+    }
+    head
+}
+
 impl CanonicalNerf {
     /// A freshly initialised field with `appearance_codes` rows of ℓ.
     pub fn new(config: &ModelConfig, appearance_codes: usize, device: &Device) -> Self {
@@ -67,7 +86,7 @@ impl CanonicalNerf {
             xyz: xyz_pe,
             dir: dir_pe,
             trunk: trunk.init(device),
-            density: torch_linear(w, 1, device),
+            density: density_head(w, grid_config.is_some(), device),
             feature: torch_linear(w, w, device),
             appearance_fc: torch_linear(w + config.appearance_code_dim, w, device),
             view_fc: torch_linear(w + dir, w / 2, device),
