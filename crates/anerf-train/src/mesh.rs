@@ -126,7 +126,7 @@ pub fn canonical_mesh(
         canonical.bounds,
         job.voxel,
         job.level,
-        |p| canonical_volume.sample(p)[canonical_volume.num_joints] < MESH_CULL_DISTANCE,
+        |p| canonical_volume.distance_at(p) < MESH_CULL_DISTANCE,
         |nodes| {
             batched(nodes, chunk, device, |p| {
                 model.canonical_density(p, canonical)
@@ -208,8 +208,7 @@ pub fn posed_mesh(
         job.voxel,
         job.level,
         |x| {
-            frame_volume.sample(global.world_to_pose(x))[frame_volume.num_joints]
-                < MESH_CULL_DISTANCE
+            frame_volume.distance_at(global.world_to_pose(x)) < MESH_CULL_DISTANCE
                 && hull.is_none_or(|h| h.contains(x))
         },
         |nodes| {
