@@ -107,8 +107,10 @@ pub struct RenderFigures {
     pub seconds: f64,
     /// Rays that hit the body box (the others are black without any work).
     pub rays: usize,
-    /// Samples evaluated by the MLPs / all samples along those rays.
+    /// Samples that survive culling / all samples along those rays.
     pub surviving_fraction: f64,
+    /// Samples shaded before their ray stopped (early termination) / all samples.
+    pub shaded_fraction: f64,
     /// Peak resident memory during the render, MiB.
     pub peak_mib: Option<f64>,
     /// Whether a trained run's model was rendered.
@@ -135,13 +137,14 @@ pub fn run(args: &BenchArgs) -> Result<Vec<PresetFigures>> {
     let device = args.device.device().map_err(anyhow::Error::msg)?;
     if !args.json {
         println!(
-            "{:<6} {:>9} {:>12} {:>10} {:>9} {:>10} {:>10} {:>6}",
+            "{:<6} {:>9} {:>12} {:>10} {:>9} {:>10} {:>8} {:>10} {:>6}",
             "preset",
             "step s",
             "points/s",
             "step MiB",
             "render s",
             "surviving",
+            "shaded",
             "render MiB",
             "load"
         );
@@ -189,13 +192,14 @@ fn print_row(f: &PresetFigures) {
     let opt =
         |v: Option<f64>, digits: usize| v.map_or("-".to_string(), |v| format!("{v:.digits$}"));
     println!(
-        "{:<6} {:>9} {:>12} {:>10} {:>9} {:>10} {:>10} {:>6.2}",
+        "{:<6} {:>9} {:>12} {:>10} {:>9} {:>10} {:>8} {:>10} {:>6.2}",
         f.preset,
         opt(f.step_median, 3),
         opt(f.points_per_second, 0),
         opt(f.step_peak_mib, 0),
         opt(f.render.as_ref().map(|r| r.seconds), 2),
         opt(f.render.as_ref().map(|r| r.surviving_fraction), 3),
+        opt(f.render.as_ref().map(|r| r.shaded_fraction), 3),
         opt(f.render.as_ref().and_then(|r| r.peak_mib), 0),
         f.load_before
     );
@@ -420,10 +424,9 @@ fn time_render(args: &BenchArgs, preset: ModelPreset, device: &Device) -> Result
     let view = *exp.test_views.first().unwrap_or(&exp.train_views[0]);
     let base = exp.prepared.cameras[view.0].clone();
     let camera = base.resized(args.render_size as f32 / base.width.max(base.height) as f32);
-    let chunk = exp.config.eval.chunk;
     reset_peak_memory();
     let started = Instant::now();
-    let image = render_view(&model, &mut exp, frame, &camera, None, chunk)?;
+    let image = render_view(&model, &mut exp, frame, &camera, None)?;
     let seconds = started.elapsed().as_secs_f64();
     Ok(RenderFigures {
         width: camera.width,
@@ -431,6 +434,7 @@ fn time_render(args: &BenchArgs, preset: ModelPreset, device: &Device) -> Result
         seconds,
         rays: image.rays,
         surviving_fraction: image.surviving_samples as f64 / image.total_samples.max(1) as f64,
+        shaded_fraction: image.shaded_samples as f64 / image.total_samples.max(1) as f64,
         peak_mib: peak_memory_mib(),
         trained,
     })

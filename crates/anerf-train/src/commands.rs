@@ -340,11 +340,10 @@ pub fn eval(run_path: &Path, split: EvalSplit, common: &Common) -> Result<Summar
     if common.quiet {
         bar.set_draw_target(indicatif::ProgressDrawTarget::hidden());
     }
-    let chunk = exp.config.eval.chunk;
     for &frame in &frames {
         for &view in &views {
             let camera = exp.prepared.cameras[view.0].clone();
-            let image = render_view(&model, &mut exp, frame, &camera, Some(view), chunk)?;
+            let image = render_view(&model, &mut exp, frame, &camera, Some(view))?;
             let gt = image
                 .ground_truth
                 .as_ref()
@@ -538,14 +537,8 @@ fn render_pose_files(
             camera: &camera,
             ground_truth: None,
         };
-        let image = render_shot(
-            &model,
-            exp.canonical(),
-            &shot,
-            exp.config.eval.chunk,
-            &exp.device,
-        )
-        .with_context(|| format!("rendering the pose of {}", file.display()))?;
+        let image = render_shot(&model, exp.canonical(), &shot, &exp.config.eval)
+            .with_context(|| format!("rendering the pose of {}", file.display()))?;
         frames.push(image.prediction);
         bar.inc(1);
     }
@@ -569,8 +562,7 @@ fn render_dataset_shots(
     let bar = image_bar(shots.len(), common);
     let mut frames = Vec::with_capacity(shots.len());
     for (frame, camera) in shots {
-        let chunk = exp.config.eval.chunk;
-        frames.push(render_view(model, exp, *frame, camera, None, chunk)?.prediction);
+        frames.push(render_view(model, exp, *frame, camera, None)?.prediction);
         bar.inc(1);
     }
     bar.finish_and_clear();

@@ -253,6 +253,15 @@ pub struct EvalConfig {
     pub frame_interval: usize,
     /// Rays rendered per chunk.
     pub chunk: usize,
+    /// A rendered ray stops once its transmittance falls below this (early ray termination): the colour and
+    /// opacity it would still gather are smaller. 0 shades every sample that survives culling.
+    #[serde(default = "default_termination")]
+    pub termination: f32,
+}
+
+/// The default [`EvalConfig::termination`]: a 40th of an 8-bit grey level.
+fn default_termination() -> f32 {
+    1e-4
 }
 
 /// A whole experiment, as resolved from its files and overrides.
@@ -534,6 +543,12 @@ pub fn validate(c: &ExperimentConfig) -> Result<(), ConfigError> {
     }
     if c.eval.frame_interval == 0 || c.eval.chunk == 0 {
         return bad("eval", "frame_interval and chunk must be positive".into());
+    }
+    if !(0.0..1.0).contains(&c.eval.termination) {
+        return bad(
+            "eval.termination",
+            format!("{} (expected 0 ≤ termination < 1)", c.eval.termination),
+        );
     }
     if c.name.is_empty() || c.name.contains(['/', '\\']) {
         return bad(

@@ -2,15 +2,13 @@
 
 use anerf_core::geometry::{Aabb, Camera};
 use anerf_core::model::{AnimatableNerf, CanonicalInputs, FrameInputs};
-use anerf_core::render::RayBatch;
-use anerf_core::tensor::to_host;
 use anerf_core::{FrameId, ViewId};
 use anerf_data::{image_rays, SamplerOptions};
 use anerf_eval::{ImageSize, PixelMask, RgbImageF32};
 use anyhow::{Context, Result};
-use burn::prelude::Device;
 use image::{GrayImage, Rgb32FImage};
 
+use crate::config::EvalConfig;
 use crate::experiment::Experiment;
 
 /// A rendered image with what the protocol compares it against.
@@ -23,8 +21,10 @@ pub struct RenderedImage {
     pub mask: PixelMask,
     /// Rays rendered (pixels inside `mask`).
     pub rays: usize,
-    /// Samples that reached the MLPs, and all samples along the rendered rays.
+    /// Samples that survived culling, those shaded before their ray stopped (early termination, empty
+    /// canonical cells), and all samples along the rendered rays.
     pub surviving_samples: usize,
+    pub shaded_samples: usize,
     pub total_samples: usize,
 }
 
@@ -39,14 +39,13 @@ pub struct Shot<'a> {
 }
 
 /// Renders frame `frame` as seen by camera `camera` (a dataset view when `view` is given, whose image then
-/// serves as ground truth), `chunk` rays at a time.
+/// serves as ground truth), with the experiment's `[eval]` settings.
 pub fn render_view(
     model: &AnimatableNerf,
     exp: &mut Experiment,
     frame: FrameId,
     camera: &Camera,
     view: Option<ViewId>,
-    chunk: usize,
 ) -> Result<RenderedImage> {
     let bounds = exp.frame_bounds(frame)?;
     let images = match view {
@@ -60,17 +59,18 @@ pub fn render_view(
         camera,
         ground_truth: images.as_ref().map(|(i, m)| (i, m)),
     };
-    render_shot(model, exp.canonical(), &shot, chunk, &exp.device)
+    let settings = exp.config.eval.clone();
+    render_shot(model, exp.canonical(), &shot, &settings)
         .with_context(|| format!("rendering {frame}"))
 }
 
-/// Renders `shot`, `chunk` rays at a time.
+/// Renders `shot`, `settings.chunk` rays at a time, each ray stopping at transmittance
+/// `settings.termination` ([`AnimatableNerf::march`]).
 pub fn render_shot(
     model: &AnimatableNerf,
     canonical: &CanonicalInputs,
     shot: &Shot,
-    chunk: usize,
-    device: &Device,
+    settings: &EvalConfig,
 ) -> Result<RenderedImage> {
     let rays = image_rays(
         shot.camera,
@@ -82,17 +82,17 @@ pub fn render_shot(
     let size = ImageSize::new(rays.width, rays.height);
     let mut prediction = RgbImageF32::black(size);
     let mut hit = vec![false; size.pixels()];
-    let (mut surviving_samples, mut total_samples) = (0, 0);
-    for start in (0..rays.rays.len()).step_by(chunk.max(1)) {
-        let part = rays.rays.slice(start..(start + chunk).min(rays.rays.len()));
-        // Frame and view ids label training batches; a rendered image needs neither.
-        let batch = RayBatch::new(&part, FrameId(usize::MAX), ViewId(usize::MAX), device);
-        let out = model.render(&batch, shot.inputs, canonical, None, false);
+    let (mut surviving_samples, mut shaded_samples, mut total_samples) = (0, 0, 0);
+    for start in (0..rays.rays.len()).step_by(settings.chunk.max(1)) {
+        let part = rays
+            .rays
+            .slice(start..(start + settings.chunk).min(rays.rays.len()));
+        let out = model.march(&part, shot.inputs, canonical, settings.termination);
         surviving_samples += out.surviving_samples;
+        shaded_samples += out.shaded_samples;
         total_samples += out.total_samples;
-        let rgb = to_host(out.rgb);
-        for (i, [u, v]) in part.pixels.iter().enumerate() {
-            prediction.set_pixel(*u, *v, [rgb[3 * i], rgb[3 * i + 1], rgb[3 * i + 2]]);
+        for (rgb, [u, v]) in out.rgb.chunks_exact(3).zip(&part.pixels) {
+            prediction.set_pixel(*u, *v, [rgb[0], rgb[1], rgb[2]]);
             hit[(*v * size.width + *u) as usize] = true;
         }
     }
@@ -106,6 +106,7 @@ pub fn render_shot(
         mask: PixelMask::new(size, hit).expect("sized from the image"),
         rays: rays.rays.len(),
         surviving_samples,
+        shaded_samples,
         total_samples,
     })
 }

@@ -353,9 +353,8 @@ fn validate(
     let frame = exp.train_frames[exp.train_frames.len() / 2];
     let view = *exp.test_views.first().unwrap_or(&exp.train_views[0]);
     let camera = exp.prepared.cameras[view.0].clone();
-    let chunk = exp.config.eval.chunk;
     // The training model renders directly; no backward pass follows, so its graph is simply dropped.
-    let image = render_view(model, exp, frame, &camera, Some(view), chunk)?;
+    let image = render_view(model, exp, frame, &camera, Some(view))?;
     let gt = image
         .ground_truth
         .as_ref()

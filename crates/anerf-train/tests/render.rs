@@ -182,15 +182,9 @@ fn an_orbit_renders_the_requested_views_and_size() {
         .unwrap();
     let reference = &exp.prepared.cameras[exp.train_views[0].0];
     let camera = reference.resized(24.0 / reference.width as f32);
-    let direct = anerf_train::render::render_view(
-        &model,
-        &mut exp,
-        anerf_core::FrameId(2),
-        &camera,
-        None,
-        4096,
-    )
-    .unwrap();
+    let direct =
+        anerf_train::render::render_view(&model, &mut exp, anerf_core::FrameId(2), &camera, None)
+            .unwrap();
     let psnr = ImageMetrics::compute(&frames[0], &direct.prediction, None)
         .unwrap()
         .psnr;

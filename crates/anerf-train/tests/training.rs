@@ -52,7 +52,6 @@ fn held_out_psnr(config: &ExperimentConfig, run: Option<&Path>) -> f64 {
         anerf_core::FrameId(0),
         &camera,
         Some(anerf_core::ViewId(1)),
-        4096,
     )
     .unwrap();
     ImageMetrics::compute(

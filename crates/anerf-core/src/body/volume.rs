@@ -124,7 +124,13 @@ impl BlendWeightVolume {
 
     /// The distance channel alone at one point (metres): what culling reads for every sample.
     pub fn distance_at(&self, p: Vec3) -> f32 {
-        self.corners(p)
+        let (base, frac) = self.cell(p);
+        self.distance_in_cell(base, frac)
+    }
+
+    /// [`Self::distance_at`] from the point's cell and position in it ([`Self::cell`]).
+    fn distance_in_cell(&self, base: [usize; 3], frac: [f32; 3]) -> f32 {
+        self.cell_corners(base, frac)
             .iter()
             .map(|(idx, w)| w * self.node(idx[0], idx[1], idx[2])[self.num_joints])
             .sum()
@@ -132,6 +138,12 @@ impl BlendWeightVolume {
 
     /// The 8 surrounding nodes and their trilinear weights (border clamped).
     fn corners(&self, p: Vec3) -> [([usize; 3], f32); 8] {
+        let (base, frac) = self.cell(p);
+        self.cell_corners(base, frac)
+    }
+
+    /// The cell holding `p` (its lowest node; border clamped) and `p`'s position in it, in `[0, 1]` per axis.
+    fn cell(&self, p: Vec3) -> ([usize; 3], [f32; 3]) {
         let mut base = [0usize; 3];
         let mut frac = [0.0f32; 3];
         for a in 0..3 {
@@ -142,6 +154,11 @@ impl BlendWeightVolume {
             base[a] = i0;
             frac[a] = u - i0 as f32;
         }
+        (base, frac)
+    }
+
+    /// The nodes of the cell at `base` and their trilinear weights at `frac`.
+    fn cell_corners(&self, base: [usize; 3], frac: [f32; 3]) -> [([usize; 3], f32); 8] {
         std::array::from_fn(|c| {
             let mut idx = [0usize; 3];
             let mut w = 1.0;
@@ -152,6 +169,38 @@ impl BlendWeightVolume {
             }
             (idx, w)
         })
+    }
+
+    /// Cells per axis (one even for an axis of a single node).
+    fn cell_dims(&self) -> [usize; 3] {
+        self.dims.map(|n| n.saturating_sub(1).max(1))
+    }
+
+    /// The flat index of the cell at `base`.
+    fn cell_index(&self, base: [usize; 3]) -> usize {
+        let c = self.cell_dims();
+        (base[0] * c[1] + base[1]) * c[2] + base[2]
+    }
+
+    /// The least and greatest distance at the corners of every cell (indexed as [`Self::cell_index`]).
+    fn cell_distance_ranges(&self) -> Vec<[f32; 2]> {
+        let c = self.cell_dims();
+        let mut ranges = Vec::with_capacity(c.iter().product());
+        for i in 0..c[0] {
+            for j in 0..c[1] {
+                for k in 0..c[2] {
+                    let corners = self.cell_corners([i, j, k], [0.0; 3]);
+                    ranges.push(corners.iter().fold(
+                        [f32::INFINITY, f32::NEG_INFINITY],
+                        |[lo, hi], (idx, _)| {
+                            let d = self.node(idx[0], idx[1], idx[2])[self.num_joints];
+                            [lo.min(d), hi.max(d)]
+                        },
+                    ));
+                }
+            }
+        }
+        ranges
     }
 
     /// Uploads the volume for tensor lookups.
@@ -165,7 +214,10 @@ impl BlendWeightVolume {
         VolumeTensor {
             table: crate::tensor::from_rows(&self.data, nodes, self.channels(), device),
             distance: crate::tensor::from_rows(&distance, nodes, 1, device),
-            host: Arc::new(self.clone()),
+            host: Arc::new(HostVolume {
+                cell_distances: self.cell_distance_ranges(),
+                volume: self.clone(),
+            }),
             min: self.bounds.min,
             size: self.bounds.size(),
             dims: self.dims,
@@ -182,11 +234,38 @@ pub struct VolumeTensor {
     table: Tensor<2>,
     distance: Tensor<2>,
     /// The volume on the host (shared by clones), for the renderer's lookups at constant points.
-    host: Arc<BlendWeightVolume>,
+    host: Arc<HostVolume>,
     min: Vec3,
     size: Vec3,
     dims: [usize; 3],
     num_joints: usize,
+}
+
+/// A volume on the host with the least and greatest corner distance of each cell: trilinear interpolation
+/// is a convex combination of a cell's corners, so every point of a cell lies at least as far from the body as
+/// its nearest corner and at most as far as its farthest, and culling interpolates only in cells that straddle
+/// the threshold.
+#[derive(Debug)]
+struct HostVolume {
+    volume: BlendWeightVolume,
+    cell_distances: Vec<[f32; 2]>,
+}
+
+impl HostVolume {
+    /// Exactly `volume.distance_at(p) < threshold`, interpolating only where the cell's corners straddle the
+    /// threshold. The margin covers the rounding of the interpolation weights (which sum to 1 within a few ulp).
+    fn is_near(&self, p: Vec3, threshold: f32) -> bool {
+        let (base, frac) = self.volume.cell(p);
+        let [lo, hi] = self.cell_distances[self.volume.cell_index(base)];
+        let margin = 1e-5 * threshold.abs() + 1e-7;
+        if lo >= threshold + margin {
+            false
+        } else if hi < threshold - margin {
+            true
+        } else {
+            self.volume.distance_in_cell(base, frac) < threshold
+        }
+    }
 }
 
 /// Blend weights and distance read from a volume at a batch of points.
@@ -204,6 +283,11 @@ impl VolumeTensor {
         self.num_joints
     }
 
+    /// The device holding the volume.
+    pub fn device(&self) -> Device {
+        self.table.device()
+    }
+
     /// Trilinear lookup at points `[N, 3]` (the volume's frame, metres), border clamped; differentiable in
     /// the points.
     pub fn sample(&self, points: Tensor<2>) -> VolumeSample {
@@ -217,7 +301,13 @@ impl VolumeTensor {
     /// The distance to the body at one point of the volume's frame (metres), read on the host: the renderer
     /// culls every sample with it before anything reaches the device.
     pub fn distance_at(&self, p: Vec3) -> f32 {
-        self.host.distance_at(p)
+        self.host.volume.distance_at(p)
+    }
+
+    /// Whether a point of the volume's frame lies nearer to the body than `threshold` metres: the same answer as
+    /// `distance_at(p) < threshold`, mostly without interpolating ([`HostVolume`]).
+    pub fn is_near(&self, p: Vec3, threshold: f32) -> bool {
+        self.host.is_near(p, threshold)
     }
 
     /// Prior weights `[N, K]` at host points (the volume's frame, metres) that need no gradient, such as the
@@ -233,8 +323,8 @@ impl VolumeTensor {
             .zip(points.par_chunks(BLOCK))
             .for_each(|(out, points)| {
                 for (out, &p) in out.chunks_exact_mut(k.max(1)).zip(points) {
-                    for (idx, w) in self.host.corners(p) {
-                        let node = &self.host.node(idx[0], idx[1], idx[2])[..k];
+                    for (idx, w) in self.host.volume.corners(p) {
+                        let node = &self.host.volume.node(idx[0], idx[1], idx[2])[..k];
                         for (o, v) in out.iter_mut().zip(node) {
                             *o += w * v;
                         }
@@ -384,6 +474,44 @@ mod tests {
         for (a, b) in g.iter().zip([1.0, 2.0, -3.0]) {
             assert!((a - b).abs() < 1e-4, "{g:?}");
         }
+    }
+
+    /// The culling test against interpolating everywhere: a volume of random distances (so cells straddle,
+    /// lie below and above the thresholds), points inside and outside the box, thresholds at node values.
+    #[test]
+    fn is_near_agrees_with_the_interpolated_distance_everywhere() {
+        use rand::{Rng, SeedableRng};
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(7);
+        let bounds = Aabb {
+            min: Vec3::new(-0.4, -0.9, -0.3),
+            max: Vec3::new(0.6, 0.9, 0.2),
+        };
+        let dims = [6, 9, 1];
+        let data: Vec<f32> = (0..dims.iter().product::<usize>())
+            .flat_map(|_| [0.5, rng.random_range(0.0..0.2f32)])
+            .collect();
+        let v = BlendWeightVolume::new(bounds, dims, 1, data).unwrap();
+        let host = v.to_tensor(&cpu_device());
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(8);
+        let node_distance = v.data[2 * 17 + 1];
+        let (mut near, mut far) = (0, 0);
+        for threshold in [0.05, 0.1, 0.15, node_distance, 0.0, 1.0] {
+            for _ in 0..4000 {
+                let p = Vec3::new(
+                    rng.random_range(-0.6..0.8),
+                    rng.random_range(-1.0..1.0),
+                    rng.random_range(-0.4..0.3),
+                );
+                let expected = v.distance_at(p) < threshold;
+                assert_eq!(host.is_near(p, threshold), expected, "{p} at {threshold}");
+                if expected {
+                    near += 1;
+                } else {
+                    far += 1;
+                }
+            }
+        }
+        assert!(near > 1000 && far > 1000, "{near} near, {far} far");
     }
 
     #[test]

@@ -284,6 +284,47 @@ impl AnimatableNerf {
         }
     }
 
+    /// Shades host samples: pose-space points (metres) with world-space unit view directions `[M·3]`. Their
+    /// prior weights are read on the host ([`VolumeTensor::weights_at`]), the samples uploaded, warped, and
+    /// (with an occupancy grid) those in empty canonical cells dropped; returns the rows of the given samples
+    /// that reached the canonical NeRF (all of them without a grid; never none) and their shading.
+    pub(super) fn shade_survivors(
+        &self,
+        points: &[Vec3],
+        directions: Vec<f32>,
+        frame: &FrameInputs,
+        canonical: &CanonicalInputs,
+    ) -> (Vec<i64>, ShadedSamples) {
+        let device = frame.volume.device();
+        let m = points.len();
+        let prior = frame.volume.weights_at(points);
+        let flat: Vec<f32> = points.iter().flat_map(|p| p.to_array()).collect();
+        let points = Tensor::from_data(TensorData::new(flat, [m, 3]), &device);
+        let dirs = Tensor::from_data(TensorData::new(directions, [m, 3]), &device);
+        let (weights, canonical_points) = self.warp(points, prior, frame);
+        let Some(grid) = &self.occupancy else {
+            let rows = (0..m as i64).collect();
+            return (
+                rows,
+                self.radiance(weights, canonical_points, dirs, frame, canonical),
+            );
+        };
+        let mut rows = grid.occupied_rows(&to_host(canonical_points.clone()));
+        if rows.is_empty() {
+            rows.push(0);
+        }
+        let local =
+            Tensor::<1, Int>::from_data(TensorData::new(rows.clone(), [rows.len()]), &device);
+        let shaded = self.radiance(
+            weights.select(0, local.clone()),
+            canonical_points.select(0, local.clone()),
+            dirs.select(0, local),
+            frame,
+            canonical,
+        );
+        (rows, shaded)
+    }
+
     /// Renders `rays` of one frame. `jitter` (`[R, S]` uniform in `[0, 1)`) perturbs the depths when training;
     /// `with_consistency` also returns the inputs of the blend-weight consistency loss.
     ///
@@ -321,35 +362,11 @@ impl AnimatableNerf {
         );
         let keep = survivors.index;
         let m = keep.len();
-        let index = Tensor::<1, Int>::from_data(TensorData::new(keep.clone(), [m]), &device);
-        let prior = frame.volume.weights_at(&survivors.points);
-        let flat: Vec<f32> = survivors.points.iter().flat_map(|p| p.to_array()).collect();
-        let points = Tensor::from_data(TensorData::new(flat, [m, 3]), &device);
-        let dirs = Tensor::from_data(TensorData::new(survivors.directions, [m, 3]), &device);
-        let (weights, canonical_points) = self.warp(points, prior, frame);
-        let (index, weights, canonical_points, dirs) = match &self.occupancy {
-            Some(grid) => {
-                let mut rows = grid.occupied_rows(&to_host(canonical_points.clone()));
-                if rows.is_empty() {
-                    rows.push(0);
-                }
-                let global: Vec<i64> = rows.iter().map(|&j| keep[j as usize]).collect();
-                let local =
-                    Tensor::<1, Int>::from_data(TensorData::new(rows, [global.len()]), &device);
-                (
-                    Tensor::<1, Int>::from_data(
-                        TensorData::new(global.clone(), [global.len()]),
-                        &device,
-                    ),
-                    weights.select(0, local.clone()),
-                    canonical_points.select(0, local.clone()),
-                    dirs.select(0, local),
-                )
-            }
-            None => (index, weights, canonical_points, dirs),
-        };
-        let occupied = index.dims()[0];
-        let shaded = self.radiance(weights, canonical_points, dirs, frame, canonical);
+        let (rows, shaded) =
+            self.shade_survivors(&survivors.points, survivors.directions, frame, canonical);
+        let occupied = rows.len();
+        let global: Vec<i64> = rows.iter().map(|&j| keep[j as usize]).collect();
+        let index = Tensor::<1, Int>::from_data(TensorData::new(global, [occupied]), &device);
 
         let consistency = with_consistency.then(|| ConsistencyTerms {
             observed: shaded.weights.clone(),
@@ -402,7 +419,8 @@ pub struct Survivors {
 }
 
 /// Places the samples of `rays` in pose space (`x_pose = R_hᵀ (o + z·d − T_h)`) and keeps those closer than
-/// `threshold` to the body by the host copy of the frame volume's distance channel ([`surviving_indices`]).
+/// `threshold` to the body by the host copy of the frame volume's distance channel
+/// ([`VolumeTensor::is_near`]); when none is, the closest sample (as [`surviving_indices`]).
 pub fn cull_samples(
     rays: &SampleRays,
     global: &GlobalTransform,
@@ -417,12 +435,25 @@ pub fn cull_samples(
         rotation_t
             * (ray_vec(rays.origins, r) + ray_vec(rays.directions, r) * rays.depths[i] - global.th)
     };
-    let distance: Vec<f32> = (0..rays.depths.len())
+    let n = rays.depths.len();
+    let mut near: Vec<(i64, Vec3)> = (0..n)
         .into_par_iter()
-        .map(|i| volume.distance_at(pose(i)))
+        .filter_map(|i| {
+            let p = pose(i);
+            volume.is_near(p, threshold).then_some((i as i64, p))
+        })
         .collect();
-    let index = surviving_indices(&distance, threshold);
-    let points = index.iter().map(|&i| pose(i as usize)).collect();
+    if near.is_empty() && n > 0 {
+        let distance: Vec<f32> = (0..n)
+            .into_par_iter()
+            .map(|i| volume.distance_at(pose(i)))
+            .collect();
+        near = surviving_indices(&distance, threshold)
+            .into_iter()
+            .map(|i| (i, pose(i as usize)))
+            .collect();
+    }
+    let (index, points): (Vec<i64>, Vec<Vec3>) = near.into_iter().unzip();
     let directions = index
         .iter()
         .flat_map(|&i| ray_vec(rays.directions, i as usize / s).to_array())

@@ -5,6 +5,7 @@ pub mod blend;
 pub mod config;
 pub mod encoding;
 pub mod hash_grid;
+pub mod march;
 pub mod mlp;
 pub mod nerf;
 pub mod occupancy;
@@ -17,6 +18,7 @@ pub use animatable::{
 pub use blend::BlendWeightField;
 pub use config::{BlendParameterisation, ConsistencyLoss, ModelConfig, ModelPreset, PointEncoding};
 pub use encoding::PositionalEncoding;
+pub use march::MarchedRays;
 pub use nerf::CanonicalNerf;
 pub use occupancy::{OccupancyConfig, OccupancyGrid};
 #[cfg(test)]

@@ -47,6 +47,8 @@ pub(crate) struct Scene {
     pub frame: FrameInputs,
     pub canonical: CanonicalInputs,
     pub rays: RayBatch,
+    /// The same rays on the host.
+    pub host_rays: HostRays,
     pub host_volume: BlendWeightVolume,
     pub bones: crate::geometry::BoneTransforms,
 }
@@ -112,6 +114,7 @@ fn scene(device: &Device, code: FrameCode) -> Scene {
         frame,
         canonical,
         rays,
+        host_rays: host,
         host_volume,
         bones,
     }
@@ -120,8 +123,13 @@ fn scene(device: &Device, code: FrameCode) -> Scene {
 /// A tiny model whose raw density is shifted up by 2 (through the bias of the one-output density head) so
 /// that the untrained field is visible: at PyTorch's initialisation the density is mostly negative.
 fn tiny_model(device: &Device) -> AnimatableNerf {
+    shifted_model(device, 2.0, 12)
+}
+
+/// The tiny model with its raw density shifted up by `shift` (per metre), `samples` per ray.
+fn shifted_model(device: &Device, shift: f32, samples: usize) -> AnimatableNerf {
     let mut config = ModelPreset::Tiny.config();
-    config.samples_per_ray = 12;
+    config.samples_per_ray = samples;
     let model = AnimatableNerf::new(
         &config,
         ModelSizes {
@@ -141,7 +149,7 @@ fn tiny_model(device: &Device) -> AnimatableNerf {
     model.map(&mut Nudge {
         target: density_bias,
         index: 0,
-        delta: 2.0,
+        delta: shift,
     })
 }
 
@@ -549,5 +557,71 @@ fn a_fresh_hash_grid_model_has_positive_density_for_every_seed() {
         let density = to_host(nerf.density(points.clone()));
         let lowest = density.iter().copied().fold(f32::INFINITY, f32::min);
         assert!(lowest > 0.0, "seed {seed}: raw density down to {lowest}");
+    }
+}
+
+#[test]
+fn marching_every_sample_renders_the_tensor_renderers_image() {
+    let device = cpu_device();
+    device.seed(5);
+    let s = scene(&device, FrameCode::Training(1));
+    let model = tiny_model(&device);
+    let full = model.render(&s.rays, &s.frame, &s.canonical, None, false);
+    let marched = model.march(&s.host_rays, &s.frame, &s.canonical, 0.0);
+    assert_eq!(marched.surviving_samples, full.surviving_samples);
+    assert_eq!(marched.shaded_samples, marched.surviving_samples);
+    assert_eq!(marched.total_samples, full.total_samples);
+    for (name, a, b) in [
+        ("rgb", &marched.rgb, to_host(full.rgb)),
+        ("acc", &marched.acc, to_host(full.acc)),
+        ("depth", &marched.depth, to_host(full.depth)),
+    ] {
+        assert_eq!(a.len(), b.len(), "{name}");
+        let worst = a
+            .iter()
+            .zip(&b)
+            .map(|(x, y)| (x - y).abs())
+            .fold(0.0, f32::max);
+        assert!(
+            worst < 1e-5,
+            "{name}: marched and tensor renders differ by {worst}"
+        );
+    }
+    assert!(
+        marched.acc.iter().any(|&a| a > 0.1),
+        "the scene must be visible"
+    );
+}
+
+/// An opaque body: rays stop behind its surface, so fewer samples are shaded, and each pixel changes by less
+/// than the termination threshold.
+#[test]
+fn early_termination_skips_samples_behind_an_opaque_surface_within_its_bound() {
+    let device = cpu_device();
+    device.seed(6);
+    let s = scene(&device, FrameCode::Training(1));
+    // 64 samples per ray, as the presets: the first round shades 8 of each ray's survivors.
+    let model = shifted_model(&device, 60.0, 64);
+    let every = model.march(&s.host_rays, &s.frame, &s.canonical, 0.0);
+    let threshold = 1e-3;
+    let stopped = model.march(&s.host_rays, &s.frame, &s.canonical, threshold);
+    assert!(
+        every.acc.iter().any(|&a| a > 1.0 - threshold),
+        "some ray must be opaque: {:?}",
+        every.acc
+    );
+    assert!(
+        (stopped.shaded_samples as f32) < 0.8 * every.shaded_samples as f32,
+        "{} of {} samples shaded",
+        stopped.shaded_samples,
+        every.shaded_samples
+    );
+    for (a, b) in stopped
+        .rgb
+        .iter()
+        .zip(&every.rgb)
+        .chain(stopped.acc.iter().zip(&every.acc))
+    {
+        assert!((a - b).abs() <= threshold, "{a} vs {b}");
     }
 }

@@ -8,4 +8,4 @@ pub mod sampling;
 pub use composite::{composite, Composited};
 pub use loss::{blend_consistency, color_mse, psnr_from_mse};
 pub use rays::{HostRays, RayBatch};
-pub use sampling::stratified_depths;
+pub use sampling::{sample_fractions, stratified_depths};

@@ -15,16 +15,8 @@ pub fn stratified_depths(
     jitter: Option<Tensor<2>>,
 ) -> Tensor<2> {
     let device = near.device();
-    let steps: Vec<f32> = (0..samples)
-        .map(|i| {
-            if samples > 1 {
-                i as f32 / (samples - 1) as f32
-            } else {
-                0.0
-            }
-        })
-        .collect();
-    let t = Tensor::<1>::from_floats(steps.as_slice(), &device).reshape([1, samples]);
+    let t = Tensor::<1>::from_floats(sample_fractions(samples).as_slice(), &device)
+        .reshape([1, samples]);
     let near = near.unsqueeze_dim::<2>(1);
     let far = far.unsqueeze_dim::<2>(1);
     let z = near.clone() + (far - near) * t;
@@ -36,6 +28,19 @@ pub fn stratified_depths(
     let upper = Tensor::cat(vec![mids.clone(), z.clone().narrow(1, samples - 1, 1)], 1);
     let lower = Tensor::cat(vec![z.narrow(1, 0, 1), mids], 1);
     lower.clone() + (upper - lower) * u
+}
+
+/// `S` fractions `i / (S − 1)` from the near (0) to the far (1) bound: where unjittered samples lie.
+pub fn sample_fractions(samples: usize) -> Vec<f32> {
+    (0..samples)
+        .map(|i| {
+            if samples > 1 {
+                i as f32 / (samples - 1) as f32
+            } else {
+                0.0
+            }
+        })
+        .collect()
 }
 
 #[cfg(test)]

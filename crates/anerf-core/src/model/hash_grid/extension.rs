@@ -40,6 +40,19 @@ pub trait HashGridBackend: burn::backend::Backend {
         grad: FloatTensor<Self>,
         spec: GridSpec,
     ) -> FloatTensor<Self>;
+
+    /// Both gradients, `(table [L·T, F], points [N, 3])`; backends with a fused kernel override this.
+    fn hash_grid_grads(
+        points: FloatTensor<Self>,
+        table: FloatTensor<Self>,
+        grad: FloatTensor<Self>,
+        spec: GridSpec,
+    ) -> (FloatTensor<Self>, FloatTensor<Self>) {
+        (
+            Self::hash_grid_table_grad(points.clone(), grad.clone(), spec.clone()),
+            Self::hash_grid_points_grad(points, table, grad, spec),
+        )
+    }
 }
 
 /// Whether `device` runs the hand-written kernels (the flex backend, with or without autodiff).
@@ -125,6 +138,29 @@ impl HashGridBackend for Flex {
         );
         flex_tensor(out, [n, 3])
     }
+
+    fn hash_grid_grads(
+        points: FlexTensor,
+        table: FlexTensor,
+        grad: FlexTensor,
+        spec: GridSpec,
+    ) -> (FlexTensor, FlexTensor) {
+        let n = rows(&points);
+        let mut table_grad = vec![0.0; spec.table_rows() * spec.features];
+        let mut points_grad = vec![0.0; n * 3];
+        kernels::grads(
+            &values(&points),
+            &values(&table),
+            &values(&grad),
+            &spec,
+            &mut table_grad,
+            &mut points_grad,
+        );
+        (
+            flex_tensor(table_grad, [spec.table_rows(), spec.features]),
+            flex_tensor(points_grad, [n, 3]),
+        )
+    }
 }
 
 /// The backward step of [`HashGridBackend::hash_grid_encode`]: the state holds the points, the table and
@@ -139,12 +175,19 @@ impl<B: HashGridBackend> Backward<B, 2> for EncodeBackward {
         let [points_node, table_node] = ops.parents;
         let grad = grads.consume::<B>(&ops.node);
         let (points, table, spec) = ops.state;
-        if let Some(node) = table_node {
-            let g = B::hash_grid_table_grad(points.clone(), grad.clone(), spec.clone());
-            grads.register::<B>(node.id, g);
-        }
-        if let Some(node) = points_node {
-            grads.register::<B>(node.id, B::hash_grid_points_grad(points, table, grad, spec));
+        match (table_node, points_node) {
+            (Some(table_node), Some(points_node)) => {
+                let (table_grad, points_grad) = B::hash_grid_grads(points, table, grad, spec);
+                grads.register::<B>(table_node.id, table_grad);
+                grads.register::<B>(points_node.id, points_grad);
+            }
+            (Some(node), None) => {
+                grads.register::<B>(node.id, B::hash_grid_table_grad(points, grad, spec));
+            }
+            (None, Some(node)) => {
+                grads.register::<B>(node.id, B::hash_grid_points_grad(points, table, grad, spec));
+            }
+            (None, None) => {}
         }
     }
 }
@@ -199,5 +242,20 @@ impl<B: HashGridBackend, C: CheckpointStrategy> HashGridBackend for Autodiff<B, 
             grad.into_primitive(),
             spec,
         ))
+    }
+
+    fn hash_grid_grads(
+        points: FloatTensor<Self>,
+        table: FloatTensor<Self>,
+        grad: FloatTensor<Self>,
+        spec: GridSpec,
+    ) -> (FloatTensor<Self>, FloatTensor<Self>) {
+        let (table_grad, points_grad) = B::hash_grid_grads(
+            points.into_primitive(),
+            table.into_primitive(),
+            grad.into_primitive(),
+            spec,
+        );
+        (Self::from_inner(table_grad), Self::from_inner(points_grad))
     }
 }

@@ -313,3 +313,88 @@ fn points_grad_with<const WIDTH: usize>(
             }
         });
 }
+
+/// Both gradients at once, [`table_grad`] into `grad_table` (zero on entry) and [`points_grad`] into
+/// `grad_points`: one walk over the levels computes each point's corners once for both. Each task owns its
+/// levels' table rows; the point gradients of its levels are summed into one buffer per task, and the
+/// buffers are added at the end.
+pub fn grads(
+    points: &[f32],
+    table: &[f32],
+    grad: &[f32],
+    spec: &GridSpec,
+    grad_table: &mut [f32],
+    grad_points: &mut [f32],
+) {
+    with_width!(
+        spec,
+        grads_with(points, table, grad, spec, grad_table, grad_points)
+    )
+}
+
+fn grads_with<const WIDTH: usize>(
+    points: &[f32],
+    table: &[f32],
+    grad: &[f32],
+    spec: &GridSpec,
+    grad_table: &mut [f32],
+    grad_points: &mut [f32],
+) {
+    let (f, width) = (features::<WIDTH>(spec), spec.output_dim());
+    let levels = spec.level_constants();
+    let units = spec.units(points);
+    let level_len = spec.table_size * f;
+    let per_task = levels.len().div_ceil(rayon::current_num_threads()).max(1);
+    let summed = grad_table
+        .par_chunks_mut(level_len)
+        .zip(&levels)
+        .enumerate()
+        .with_min_len(per_task)
+        .fold(
+            || vec![0.0f32; units.len() * 3],
+            |mut acc, (l, (rows, level))| {
+                let level_table = &table[l * level_len..(l + 1) * level_len];
+                for ((unit, g), acc) in units
+                    .iter()
+                    .zip(grad.chunks_exact(width))
+                    .zip(acc.chunks_exact_mut(3))
+                {
+                    let g = &g[l * f..(l + 1) * f];
+                    if g.iter().all(|&v| v == 0.0) {
+                        continue;
+                    }
+                    let corners = spec.corners(level, unit);
+                    let (weights, derivatives) = (corners.weights(), corners.weight_derivatives());
+                    let mut d = [0.0f32; 3];
+                    for ((&r, w), dw) in corners.rows.iter().zip(weights).zip(derivatives) {
+                        let mut dot = 0.0;
+                        for ((t, gv), e) in rows[r * f..(r + 1) * f]
+                            .iter_mut()
+                            .zip(g)
+                            .zip(&level_table[r * f..(r + 1) * f])
+                        {
+                            *t += w * gv;
+                            dot += gv * e;
+                        }
+                        for (d, dw) in d.iter_mut().zip(dw) {
+                            *d += dot * dw;
+                        }
+                    }
+                    for a in 0..3 {
+                        if corners.inside[a] {
+                            acc[a] += d[a] * level.cells_per_metre;
+                        }
+                    }
+                }
+                acc
+            },
+        )
+        .reduce_with(|mut a, b| {
+            a.iter_mut().zip(&b).for_each(|(a, b)| *a += b);
+            a
+        });
+    match summed {
+        Some(sum) => grad_points.copy_from_slice(&sum),
+        None => grad_points.fill(0.0),
+    }
+}

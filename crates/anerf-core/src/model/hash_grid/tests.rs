@@ -213,3 +213,50 @@ fn kernel_gradients_match_finite_differences() {
         );
     }
 }
+
+/// The fused backward kernel against the two separate ones, for the constant and the run-time width, with
+/// some output gradients zero (the kernels skip those points).
+#[test]
+fn fused_gradients_match_the_separate_kernels() {
+    for features in [2, 3] {
+        let spec = spec_with(features);
+        let n = 300;
+        let p = points(n);
+        let table: Vec<f32> = (0..spec.table_rows() * spec.features)
+            .map(|i| (i as f32 * 0.37).sin())
+            .collect();
+        let grad: Vec<f32> = (0..n * spec.output_dim())
+            .map(|i| {
+                if i % 11 == 0 {
+                    0.0
+                } else {
+                    (i as f32 * 0.91).cos()
+                }
+            })
+            .collect();
+        let mut table_grad = vec![0.0; table.len()];
+        let mut points_grad = vec![0.0; 3 * n];
+        kernels::table_grad(&p, &grad, &spec, &mut table_grad);
+        kernels::points_grad(&p, &table, &grad, &spec, &mut points_grad);
+        let mut fused_table = vec![0.0; table.len()];
+        let mut fused_points = vec![1.0; 3 * n];
+        kernels::grads(
+            &p,
+            &table,
+            &grad,
+            &spec,
+            &mut fused_table,
+            &mut fused_points,
+        );
+        assert_eq!(
+            fused_table, table_grad,
+            "F = {features}: same scatter order per level"
+        );
+        for (i, (a, b)) in fused_points.iter().zip(&points_grad).enumerate() {
+            assert!(
+                (a - b).abs() < 1e-5 * (1.0 + b.abs()),
+                "F = {features}, d/dx {i}: fused {a}, separate {b}"
+            );
+        }
+    }
+}
