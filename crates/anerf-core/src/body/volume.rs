@@ -112,14 +112,19 @@ impl BlendWeightVolume {
 
     /// Trilinear lookup at one point: `K + 1` values (weights, then distance).
     pub fn sample(&self, p: Vec3) -> Vec<f32> {
-        let corners = self.corners(p);
         let mut out = vec![0.0; self.channels()];
-        for (idx, w) in corners {
-            for (o, v) in out.iter_mut().zip(self.node(idx[0], idx[1], idx[2])) {
+        self.accumulate(p, &mut out);
+        out
+    }
+
+    /// Adds the trilinear lookup at `p` of the first `out.len()` channels to `out` (zero on entry).
+    fn accumulate(&self, p: Vec3, out: &mut [f32]) {
+        let n = out.len();
+        for (idx, w) in self.corners(p) {
+            for (o, v) in out.iter_mut().zip(&self.node(idx[0], idx[1], idx[2])[..n]) {
                 *o += w * v;
             }
         }
-        out
     }
 
     /// The distance channel alone at one point (metres): what culling reads for every sample.
@@ -324,12 +329,7 @@ impl VolumeTensor {
             .zip(points.par_chunks(BLOCK))
             .for_each(|(out, points)| {
                 for (out, &p) in out.chunks_exact_mut(k.max(1)).zip(points) {
-                    for (idx, w) in self.host.volume.corners(p) {
-                        let node = &self.host.volume.node(idx[0], idx[1], idx[2])[..k];
-                        for (o, v) in out.iter_mut().zip(node) {
-                            *o += w * v;
-                        }
-                    }
+                    self.host.volume.accumulate(p, &mut out[..k]);
                 }
             });
         let n = points.len();
