@@ -27,6 +27,8 @@ use super::extension::HashGridBackend;
 use super::kernels::HASH_PRIMES;
 use super::GridSpec;
 
+// The hash multiplies x by the first prime, 1, which `corner_row` leaves out.
+const _: () = assert!(HASH_PRIMES[0] == 1);
 const PRIME_Y: u32 = HASH_PRIMES[1];
 const PRIME_Z: u32 = HASH_PRIMES[2];
 
@@ -48,13 +50,14 @@ fn unit_coord(points: &Tensor<f32>, i: usize, axis: usize, half_extent: f32) -> 
     (points[i * 3 + axis] + half_extent) / (2.0f32 * half_extent)
 }
 
-/// The cell's low vertex and the position in it along one axis, from the clamped unit coordinate `u`.
+/// The cell's low vertex along one axis, from the clamped unit coordinate `u`.
 #[cube]
 fn axis_base(u: f32, res: u32) -> u32 {
     // `u ≥ 0`, so the conversion truncates to the floor; the far face belongs to the last cell.
     min(u32::cast_from(u * f32::cast_from(res)), res - 1)
 }
 
+/// The cell at a level of `res` cells per axis of the clamped unit position `(ux, uy, uz)`.
 #[cube]
 fn cell_at(ux: f32, uy: f32, uz: f32, res: u32) -> Cell {
     let x0 = axis_base(ux, res);
