@@ -68,6 +68,21 @@ pub fn worst_relative_difference(got: &[f32], expected: &[f32]) -> (usize, f32) 
         })
 }
 
+/// Asserts that `got` is within `tolerance` of `expected` by [`worst_relative_difference`], naming `what`
+/// and the worst element; prints the worst difference (seen with `--nocapture`). For tests comparing
+/// backends.
+pub fn assert_close(what: &str, got: &[f32], expected: &[f32], tolerance: f32) {
+    assert_eq!(got.len(), expected.len(), "{what}: lengths differ");
+    let (i, worst) = worst_relative_difference(got, expected);
+    eprintln!("{what}: worst relative difference {worst:.1e}");
+    assert!(
+        worst <= tolerance,
+        "{what}: element {i} is {}, expected {} (relative difference {worst:e})",
+        got[i],
+        expected[i]
+    );
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

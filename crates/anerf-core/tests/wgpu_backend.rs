@@ -19,7 +19,7 @@ use anerf_core::geometry::{
     Aabb, BoneMatrices, BoneTransforms, CanonicalPose, GlobalTransform, Pose, Skeleton,
 };
 use anerf_core::model::mlp::SkipMlpConfig;
-use anerf_core::tensor::{parameter_gradients, to_host, worst_relative_difference};
+use anerf_core::tensor::{parameter_gradients, to_host};
 use anerf_core::DeviceChoice;
 use burn::optim::GradientsParams;
 use burn::prelude::*;
@@ -29,18 +29,9 @@ use glam::Vec3;
 /// Relative tolerance of the comparisons (see the module documentation).
 const TOLERANCE: f32 = 1e-4;
 
-/// Asserts `got ≈ expected` within [`TOLERANCE`], naming `what` and the worst element; prints the worst
-/// difference (seen with `--nocapture`).
+/// Asserts `got` (wgpu) `≈ expected` (flex) within [`TOLERANCE`].
 fn assert_close(what: &str, got: &[f32], expected: &[f32]) {
-    assert_eq!(got.len(), expected.len(), "{what}: lengths differ");
-    let (i, worst) = worst_relative_difference(got, expected);
-    eprintln!("{what}: worst relative difference {worst:.1e}");
-    assert!(
-        worst <= TOLERANCE,
-        "{what}: element {i} is {} on wgpu, {} on flex (relative difference {worst:e})",
-        got[i],
-        expected[i],
-    );
+    anerf_core::tensor::assert_close(what, got, expected, TOLERANCE);
 }
 
 #[test]

@@ -123,12 +123,21 @@ fn scene(device: &Device, code: FrameCode) -> Scene {
 /// A tiny model whose raw density is shifted up by 2 (through the bias of the one-output density head) so
 /// that the untrained field is visible: at PyTorch's initialisation the density is mostly negative.
 fn tiny_model(device: &Device) -> AnimatableNerf {
-    shifted_model(device, 2.0, 12)
+    tiny_model_with(ModelPreset::Tiny.config(), device)
 }
 
-/// The tiny model with its raw density shifted up by `shift` (per metre), `samples` per ray.
-fn shifted_model(device: &Device, shift: f32, samples: usize) -> AnimatableNerf {
-    let mut config = ModelPreset::Tiny.config();
+/// [`tiny_model`] from `config` (12 samples per ray).
+fn tiny_model_with(config: ModelConfig, device: &Device) -> AnimatableNerf {
+    shifted_model(config, device, 2.0, 12)
+}
+
+/// A model of `config` with its raw density shifted up by `shift` (per metre), `samples` per ray.
+fn shifted_model(
+    mut config: ModelConfig,
+    device: &Device,
+    shift: f32,
+    samples: usize,
+) -> AnimatableNerf {
     config.samples_per_ray = samples;
     let model = AnimatableNerf::new(
         &config,
@@ -483,8 +492,9 @@ fn occupancy_grid_matches_zeroing_samples_in_empty_cells() {
 }
 
 /// The same image and the same parameter gradients on wgpu as on flex, where a wgpu adapter works (checked
-/// in a child process first; skipped with the reason printed where none does). Tolerance as in
-/// `tests/wgpu_backend.rs`: `|wgpu − flex| ≤ 1e-4 · (1 + |flex|)`, f32 sums in another order.
+/// in a child process first; skipped with the reason printed where none does), for the tiny model with
+/// frequency encodings and with hash grids (the CubeCL kernels on wgpu, the CPU kernels on flex). Tolerance
+/// as in `tests/wgpu_backend.rs`: `|wgpu − flex| ≤ 1e-4 · (1 + |flex|)`, f32 sums in another order.
 #[cfg(feature = "wgpu")]
 #[test]
 fn flex_and_wgpu_render_and_differentiate_the_same() {
@@ -494,50 +504,71 @@ fn flex_and_wgpu_render_and_differentiate_the_same() {
     ) else {
         return;
     };
-    let flex = cpu_device().autodiff();
-    flex.seed(6);
-    let model = tiny_model(&flex);
-    let on = |device: Device| {
-        let s = scene(&device, FrameCode::Training(1));
-        let model = model.clone().fork(&device);
-        let out = model.render(&s.rays, &s.frame, &s.canonical, None, true);
-        let weights = Tensor::<2>::from_floats([[0.7, -0.4, 1.1]], &device);
-        let objective = (out.rgb.clone() * weights).sum()
-            + out.consistency.unwrap().loss(model.config().consistency);
-        let grads = GradientsParams::from_grads(objective.backward(), &model);
-        let mut values = vec![to_host(out.rgb)];
-        values.extend(parameter_gradients(&model, &grads).into_iter().flatten());
-        values
+    assert!(super::hash_grid::extension::has_kernels(&gpu));
+    let grid = |levels, log2_table_size, finest_resolution| super::hash_grid::HashGridConfig {
+        levels,
+        log2_table_size,
+        features_per_level: 2,
+        base_resolution: 4,
+        finest_resolution,
+        half_extent: 1.3,
     };
-    let expected = on(flex.clone());
-    let got = on(gpu.autodiff());
-    assert!(
-        expected[0].iter().any(|v| *v > 1e-3),
-        "the scene renders something"
-    );
-    assert_eq!(
-        got.len(),
-        expected.len(),
-        "the same parameters received gradients"
-    );
-    let mut overall = 0.0f32;
-    for (i, (g, e)) in got.iter().zip(&expected).enumerate() {
-        let what = if i == 0 {
-            "image".to_string()
-        } else {
-            format!("gradient {}", i - 1)
+    let hash_grids = ModelConfig {
+        encoding: PointEncoding::HashGrid {
+            nerf: grid(4, 10, 32),
+            blend: grid(3, 9, 16),
+        },
+        ..ModelPreset::Tiny.config()
+    };
+    for (name, config) in [
+        ("frequencies", ModelPreset::Tiny.config()),
+        ("hash grids", hash_grids),
+    ] {
+        let flex = cpu_device().autodiff();
+        flex.seed(6);
+        let model = tiny_model_with(config, &flex);
+        let on = |device: Device| {
+            let s = scene(&device, FrameCode::Training(1));
+            let model = model.clone().fork(&device);
+            let out = model.render(&s.rays, &s.frame, &s.canonical, None, true);
+            let weights = Tensor::<2>::from_floats([[0.7, -0.4, 1.1]], &device);
+            let objective = (out.rgb.clone() * weights).sum()
+                + out.consistency.unwrap().loss(model.config().consistency);
+            let grads = GradientsParams::from_grads(objective.backward(), &model);
+            let mut values = vec![to_host(out.rgb)];
+            values.extend(parameter_gradients(&model, &grads).into_iter().flatten());
+            values
         };
-        assert_eq!(g.len(), e.len(), "{what}: lengths differ");
-        let (at, worst) = crate::tensor::worst_relative_difference(g, e);
+        let expected = on(flex.clone());
+        let got = on(gpu.clone().autodiff());
         assert!(
-            worst <= 1e-4,
-            "{what}: element {at} is {} on wgpu, {} on flex (relative difference {worst:e})",
-            g[at],
-            e[at]
+            expected[0].iter().any(|v| *v > 1e-3),
+            "{name}: the scene renders something"
         );
-        overall = overall.max(worst);
+        assert_eq!(
+            got.len(),
+            expected.len(),
+            "{name}: the same parameters received gradients"
+        );
+        let mut overall = 0.0f32;
+        for (i, (g, e)) in got.iter().zip(&expected).enumerate() {
+            let what = if i == 0 {
+                format!("{name}: image")
+            } else {
+                format!("{name}: gradient {}", i - 1)
+            };
+            assert_eq!(g.len(), e.len(), "{what}: lengths differ");
+            let (at, worst) = crate::tensor::worst_relative_difference(g, e);
+            assert!(
+                worst <= 1e-4,
+                "{what}: element {at} is {} on wgpu, {} on flex (relative difference {worst:e})",
+                g[at],
+                e[at]
+            );
+            overall = overall.max(worst);
+        }
+        eprintln!("{name}: worst relative difference over the image and gradients: {overall:.1e}");
     }
-    eprintln!("worst relative difference over the image and gradients: {overall:.1e}");
 }
 
 /// A fresh hash-grid model can start learning whatever its seed: its raw density is positive (alive under
@@ -601,7 +632,7 @@ fn early_termination_skips_samples_behind_an_opaque_surface_within_its_bound() {
     device.seed(6);
     let s = scene(&device, FrameCode::Training(1));
     // 64 samples per ray, as the presets: the first round shades 8 of each ray's survivors.
-    let model = shifted_model(&device, 60.0, 64);
+    let model = shifted_model(ModelPreset::Tiny.config(), &device, 60.0, 64);
     let every = model.march(&s.host_rays, &s.frame, &s.canonical, 0.0);
     let threshold = 1e-3;
     let stopped = model.march(&s.host_rays, &s.frame, &s.canonical, threshold);

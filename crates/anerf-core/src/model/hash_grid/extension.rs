@@ -1,6 +1,7 @@
-//! The hash-grid encoding as a Burn backend extension: the flex backend runs the CPU [`super::kernels`];
-//! the autodiff backend wraps them with a hand-written backward pass (table gradient and point gradient).
-//! Other backends use [`super::encode_reference`] (see [`has_kernels`]).
+//! The hash-grid encoding as a Burn backend extension: the flex backend runs the CPU [`super::kernels`],
+//! the CubeCL backend (with the `wgpu` feature) the kernels of `super::cube`; the autodiff backend wraps
+//! either with a hand-written backward pass (table gradient and point gradient). Other backends use
+//! [`super::encode_reference`] (see [`has_kernels`]).
 
 use burn::backend::autodiff::checkpoint::base::Checkpointer;
 use burn::backend::autodiff::checkpoint::strategy::CheckpointStrategy;
@@ -17,7 +18,7 @@ use burn::tensor::{Bytes, DType, Shape};
 use super::{kernels, GridSpec};
 
 /// The encoding's primitive operations (all tensors `f32`, row-major; see [`super::kernels`] for shapes).
-#[backend_extension(Flex, Autodiff)]
+#[backend_extension(Flex, Cube: cfg(feature = "wgpu"), Autodiff)]
 pub trait HashGridBackend: burn::backend::Backend {
     /// `[N, 3]` points and the `[L·T, F]` table → `[N, L·F]` features.
     fn hash_grid_encode(
@@ -55,12 +56,16 @@ pub trait HashGridBackend: burn::backend::Backend {
     }
 }
 
-/// Whether `device` runs the hand-written kernels (the flex backend, with or without autodiff).
+/// Whether `device` runs the hand-written kernels: the flex backend, and with the `wgpu` feature the
+/// CubeCL backend (whose only runtime in this build is wgpu); with or without autodiff.
 pub fn has_kernels(device: &Device) -> bool {
-    matches!(
-        device.as_dispatch().clone().inner(),
-        DispatchDevice::Flex(_)
-    )
+    match device.as_dispatch().clone().inner() {
+        DispatchDevice::Flex(_) => true,
+        #[cfg(feature = "wgpu")]
+        DispatchDevice::Cube(_) => true,
+        #[allow(unreachable_patterns)]
+        _ => false,
+    }
 }
 
 /// The encoding through the extension; `points` and `table` must live on a device where [`has_kernels`].

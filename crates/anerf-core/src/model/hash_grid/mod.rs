@@ -3,11 +3,14 @@
 //! fit in its table of `T` rows, else at a spatial hash of the vertex), read by trilinear interpolation and
 //! concatenated over levels.
 //!
-//! Two implementations compute the same function: hand-written CPU kernels ([`kernels`], used through a
-//! Burn backend extension on the flex backend, forward and backward) and a plain-tensor reference
+//! Three implementations compute the same function: hand-written CPU kernels ([`kernels`], used through a
+//! Burn backend extension on the flex backend, forward and backward), CubeCL kernels for the GPU backend
+//! (`cube`, with the `wgpu` feature; the same extension) and a plain-tensor reference
 //! ([`encode_reference`]: every corner of every level gathered with one `select`) that serves every other
 //! backend and that the tests compare the kernels against.
 
+#[cfg(feature = "wgpu")]
+mod cube;
 pub mod extension;
 pub mod kernels;
 
@@ -166,7 +169,7 @@ impl HashGrid {
     }
 
     /// Encodes points `[N, 3]` (metres, in the frame the grid covers) → `[N, L·F]`, differentiable in the
-    /// points and the table. Uses the CPU kernels on the flex backend, the tensor reference elsewhere.
+    /// points and the table. Uses the kernels on the flex and wgpu backends, the tensor reference elsewhere.
     pub fn forward(&self, points: Tensor<2>) -> Tensor<2> {
         if extension::has_kernels(&points.device()) {
             extension::encode(points, self.table.val(), &self.spec)
@@ -199,10 +202,13 @@ pub fn encode_reference(points: Tensor<2>, table: Tensor<2>, spec: &GridSpec) ->
                 let side = res as i64 + 1;
                 v[0].clone() + (v[1].clone() + v[2].clone() * side) * side
             } else {
-                // The kernels hash in u32 arithmetic; the low bits of the i64 products are the same.
-                (v[0].clone() * HASH_PRIMES[0] as i64)
-                    .bitwise_xor(v[1].clone() * HASH_PRIMES[1] as i64)
-                    .bitwise_xor(v[2].clone() * HASH_PRIMES[2] as i64)
+                // The kernels hash in u32 arithmetic. The primes as (wrapped) i32 values fit every
+                // backend's integers (wgpu's are i32), and the products' low 32 bits, all the mask keeps,
+                // are the same in wrapping i32, i64 and u32 arithmetic.
+                let prime = |a: usize| HASH_PRIMES[a] as i32 as i64;
+                (v[0].clone() * prime(0))
+                    .bitwise_xor(v[1].clone() * prime(1))
+                    .bitwise_xor(v[2].clone() * prime(2))
                     .bitwise_and_scalar(spec.table_size as i64 - 1)
             };
             indices.push((row + (level * spec.table_size) as i64).reshape([n]));
@@ -233,3 +239,6 @@ pub fn encode_reference(points: Tensor<2>, table: Tensor<2>, spec: &GridSpec) ->
 
 #[cfg(test)]
 mod tests;
+
+#[cfg(all(test, feature = "wgpu"))]
+mod cube_tests;

@@ -9,7 +9,7 @@ use crate::tensor::{from_rows, to_host};
 
 /// Four levels (2, 4, 8, 16 cells per axis) over `[−1, 1]³` with 256-row tables: the two coarse levels are
 /// stored densely, the two fine ones hashed.
-fn config() -> HashGridConfig {
+pub(super) fn config() -> HashGridConfig {
     HashGridConfig {
         levels: 4,
         log2_table_size: 8,
@@ -22,7 +22,7 @@ fn config() -> HashGridConfig {
 
 /// Deterministic points in `[−1.2, 1.2]³` (some outside the grid), kept away from cell faces of the finest
 /// level so that finite differences stay inside one cell.
-fn points(n: usize) -> Vec<f32> {
+pub(super) fn points(n: usize) -> Vec<f32> {
     let mut state = 0x2545_f491_4f6c_dd1du64;
     (0..3 * n)
         .map(|_| {
@@ -59,7 +59,7 @@ fn resolutions_grow_geometrically_and_coarse_levels_are_dense() {
 
 /// The test grid with `features` per level: 2 runs the kernels' constant-width instance, 3 the instance that
 /// reads the width at run time.
-fn spec_with(features: usize) -> GridSpec {
+pub(super) fn spec_with(features: usize) -> GridSpec {
     HashGridConfig {
         features_per_level: features,
         ..config()
@@ -93,27 +93,33 @@ fn forward_matches(features: usize) {
     }
 }
 
-/// The gradients of `Σ c ⊙ encode(x)` with respect to the points and the table. The table and `c` are
-/// deterministic functions of the index (not the device's global RNG, which tests running in parallel
-/// would draw from between the two calls compared).
-fn gradients(use_kernels: bool, n: usize, features: usize) -> (Vec<f32>, Vec<f32>) {
-    let device = cpu_device().autodiff();
+/// `len` deterministic values in `[−1, 1]` (a function of the index, not of the device's global RNG, which
+/// tests running in parallel would draw from between two calls compared).
+pub(super) fn wave(len: usize, scale: f32) -> Vec<f32> {
+    (0..len).map(|i| (i as f32 * scale).sin()).collect()
+}
+
+/// The gradients of `Σ c ⊙ encode(x)` with respect to the points and the table on `device` (an autodiff
+/// device), through the kernels or the reference.
+pub(super) fn gradients(
+    device: &Device,
+    use_kernels: bool,
+    n: usize,
+    features: usize,
+) -> (Vec<f32>, Vec<f32>) {
     let spec = spec_with(features);
-    let p = from_rows(&points(n), n, 3, &device).require_grad();
-    let values = |len: usize, scale: f32| -> Vec<f32> {
-        (0..len).map(|i| (i as f32 * scale).sin()).collect()
-    };
+    let p = from_rows(&points(n), n, 3, device).require_grad();
     let table = from_rows(
-        &values(spec.table_rows() * spec.features, 0.37),
+        &wave(spec.table_rows() * spec.features, 0.37),
         spec.table_rows(),
         spec.features,
-        &device,
+        device,
     );
     let coeff = from_rows(
-        &values(n * spec.output_dim(), 0.91),
+        &wave(n * spec.output_dim(), 0.91),
         n,
         spec.output_dim(),
-        &device,
+        device,
     );
     let table = table.require_grad();
     let out = if use_kernels {
@@ -136,8 +142,9 @@ fn kernels_match_the_reference_backward() {
 }
 
 fn backward_matches(features: usize) {
-    let (kp, kt) = gradients(true, 150, features);
-    let (rp, rt) = gradients(false, 150, features);
+    let device = cpu_device().autodiff();
+    let (kp, kt) = gradients(&device, true, 150, features);
+    let (rp, rt) = gradients(&device, false, 150, features);
     for (i, (a, b)) in kp.iter().zip(&rp).enumerate() {
         assert!(
             (a - b).abs() < 1e-3 * (1.0 + b.abs()),
