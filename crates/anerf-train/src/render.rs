@@ -59,8 +59,7 @@ pub fn render_view(
         camera,
         ground_truth: images.as_ref().map(|(i, m)| (i, m)),
     };
-    let settings = exp.config.eval.clone();
-    render_shot(model, exp.canonical(), &shot, &settings)
+    render_shot(model, exp.canonical(), &shot, &exp.config.eval)
         .with_context(|| format!("rendering {frame}"))
 }
 

@@ -224,10 +224,6 @@ impl BlendWeightVolume {
                 cell_distances: self.cell_distance_ranges(),
                 volume: self.clone(),
             }),
-            min: self.bounds.min,
-            size: self.bounds.size(),
-            dims: self.dims,
-            num_joints: self.num_joints,
         }
     }
 }
@@ -241,10 +237,6 @@ pub struct VolumeTensor {
     distance: Tensor<2>,
     /// The volume on the host (shared by clones), for the renderer's lookups at constant points.
     host: Arc<HostVolume>,
-    min: Vec3,
-    size: Vec3,
-    dims: [usize; 3],
-    num_joints: usize,
 }
 
 /// A volume on the host with the least and greatest corner distance of each cell: trilinear interpolation
@@ -286,7 +278,7 @@ pub struct VolumeSample {
 impl VolumeTensor {
     /// Number of joints `K`.
     pub fn num_joints(&self) -> usize {
-        self.num_joints
+        self.host.volume.num_joints
     }
 
     /// The device holding the volume.
@@ -299,8 +291,8 @@ impl VolumeTensor {
     pub fn sample(&self, points: Tensor<2>) -> VolumeSample {
         let values = self.interpolate(&self.table, points);
         VolumeSample {
-            weights: values.clone().narrow(1, 0, self.num_joints),
-            distance: values.narrow(1, self.num_joints, 1),
+            weights: values.clone().narrow(1, 0, self.host.volume.num_joints),
+            distance: values.narrow(1, self.host.volume.num_joints, 1),
         }
     }
 
@@ -320,7 +312,7 @@ impl VolumeTensor {
     /// renderer's samples: interpolated on the host (as [`BlendWeightVolume::sample`]) and uploaded, instead
     /// of the few dozen tensor operations of [`Self::sample`].
     pub fn weights_at(&self, points: &[Vec3]) -> Tensor<2> {
-        let k = self.num_joints;
+        let k = self.host.volume.num_joints;
         let mut weights = vec![0.0; points.len() * k];
         // Blocks of points per rayon task: one task per point costs more than its lookup.
         const BLOCK: usize = 256;
@@ -345,21 +337,23 @@ impl VolumeTensor {
     fn interpolate(&self, table: &Tensor<2>, points: Tensor<2>) -> Tensor<2> {
         let [n, _] = points.dims();
         let channels = table.dims()[1];
+        let (bounds, dims) = (self.host.volume.bounds, self.host.volume.dims);
+        let size = bounds.size();
         let mut base = Vec::with_capacity(3);
         let mut frac = Vec::with_capacity(3);
         for a in 0..3 {
-            let cells = (self.dims[a] - 1) as f32;
-            let u = ((points.clone().narrow(1, a, 1) - self.min[a]) * (cells / self.size[a]))
+            let cells = (dims[a] - 1) as f32;
+            let u = ((points.clone().narrow(1, a, 1) - bounds.min[a]) * (cells / size[a]))
                 .clamp(0.0, cells);
             let i0 = u
                 .clone()
                 .detach()
                 .floor()
-                .clamp(0.0, (self.dims[a] as f32 - 2.0).max(0.0));
+                .clamp(0.0, (dims[a] as f32 - 2.0).max(0.0));
             frac.push(u - i0.clone());
             base.push(i0);
         }
-        let (ny, nz) = (self.dims[1] as f32, self.dims[2] as f32);
+        let (ny, nz) = (dims[1] as f32, dims[2] as f32);
         let mut indices = Vec::with_capacity(8);
         let mut weights = Vec::with_capacity(8);
         for c in 0..8 {
@@ -368,7 +362,7 @@ impl VolumeTensor {
             for a in 0..3 {
                 let hi = (c >> a) & 1 == 1;
                 let i = if hi {
-                    (base[a].clone() + 1.0).clamp_max((self.dims[a] - 1) as f32)
+                    (base[a].clone() + 1.0).clamp_max((dims[a] - 1) as f32)
                 } else {
                     base[a].clone()
                 };

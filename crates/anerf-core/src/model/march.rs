@@ -53,11 +53,10 @@ impl AnimatableNerf {
         let s = self.config().samples_per_ray;
         let r = rays.len();
         let depths = sample_depths(rays, s);
-        let flat = |v: &[[f32; 3]]| v.iter().flatten().copied().collect::<Vec<f32>>();
         let survivors = cull_samples(
             &SampleRays {
-                origins: &flat(&rays.origins),
-                directions: &flat(&rays.directions),
+                origins: rays.origins.as_flattened(),
+                directions: rays.directions.as_flattened(),
                 depths: &depths,
                 samples: s,
             },

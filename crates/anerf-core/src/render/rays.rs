@@ -92,15 +92,15 @@ impl RayBatch {
     /// Uploads `rays` of `frame` seen from `view`.
     pub fn new(rays: &HostRays, frame: FrameId, view: ViewId, device: &Device) -> Self {
         let n = rays.len();
-        let flat = |v: &[[f32; 3]]| v.iter().flatten().copied().collect::<Vec<f32>>();
         Self {
             frame,
             view,
-            origins: from_rows(&flat(&rays.origins), n, 3, device),
-            directions: from_rows(&flat(&rays.directions), n, 3, device),
+            origins: from_rows(rays.origins.as_flattened(), n, 3, device),
+            directions: from_rows(rays.directions.as_flattened(), n, 3, device),
             near: Tensor::from_floats(rays.near.as_slice(), device),
             far: Tensor::from_floats(rays.far.as_slice(), device),
-            colors: (!rays.colors.is_empty()).then(|| from_rows(&flat(&rays.colors), n, 3, device)),
+            colors: (!rays.colors.is_empty())
+                .then(|| from_rows(rays.colors.as_flattened(), n, 3, device)),
         }
     }
 
