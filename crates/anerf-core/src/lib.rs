@@ -11,12 +11,15 @@ pub mod alloc;
 pub mod body;
 pub mod device;
 pub mod error;
+mod flex;
+pub mod fused;
 pub mod geometry;
 pub mod ids;
 pub mod mesh;
 pub mod model;
 pub mod render;
 pub mod tensor;
+mod trilinear;
 
 pub use device::DeviceChoice;
 pub use error::GeometryError;

@@ -62,7 +62,19 @@ impl BoneMatrices {
     /// Guard: where `|det rot(M)| < DET_GUARD` (weights split between opposing bones) the determinant is
     /// replaced by `DET_GUARD`, so the output stays finite (and far outside the body, where the canonical
     /// box check zeroes its density) instead of becoming NaN; no gradient flows through the replaced value.
+    ///
+    /// On the flex backend this is one fused kernel ([`crate::fused::inverse_skinning`]; the bones get no
+    /// gradient), elsewhere [`Self::inverse_reference`].
     pub fn inverse(&self, points: Tensor<2>, weights: Tensor<2>) -> Tensor<2> {
+        if crate::fused::available(&points.device()) {
+            crate::fused::inverse_skinning(points, weights, self.rows())
+        } else {
+            self.inverse_reference(points, weights)
+        }
+    }
+
+    /// [`Self::inverse`] in tensor operations (differentiable in the bones too).
+    pub fn inverse_reference(&self, points: Tensor<2>, weights: Tensor<2>) -> Tensor<2> {
         let m = self.blend(weights);
         let row = |i: usize| m.clone().narrow(1, 4 * i, 3);
         let (r0, r1, r2) = (row(0), row(1), row(2));

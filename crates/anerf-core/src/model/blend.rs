@@ -93,13 +93,22 @@ pub fn combine(
     prior: Tensor<2>,
 ) -> Tensor<2> {
     match parameterisation {
-        BlendParameterisation::LogSoftmax => softmax((prior + 1e-9).log() + residual, 1),
+        BlendParameterisation::LogSoftmax if crate::fused::available(&prior.device()) => {
+            crate::fused::prior_softmax(prior, residual)
+        }
+        BlendParameterisation::LogSoftmax => prior_softmax_reference(prior, residual),
         BlendParameterisation::ExpNorm => {
             // exp(F) is clamped at e^30 to stay finite; rows then still normalise to 1.
             let w = residual.clamp_max(30.0).exp() + prior;
             w.clone() / w.sum_dim(1)
         }
     }
+}
+
+/// `softmax(log(w^s + ε) + F)` in tensor operations: the log-softmax parameterisation where the fused
+/// kernel ([`crate::fused::prior_softmax`]) is not available.
+pub fn prior_softmax_reference(prior: Tensor<2>, residual: Tensor<2>) -> Tensor<2> {
+    softmax((prior + crate::fused::PRIOR_EPSILON).log() + residual, 1)
 }
 
 #[cfg(test)]

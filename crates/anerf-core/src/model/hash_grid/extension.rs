@@ -8,14 +8,14 @@ use burn::backend::autodiff::checkpoint::strategy::CheckpointStrategy;
 use burn::backend::autodiff::grads::Gradients;
 use burn::backend::autodiff::ops::{Backward, Ops, OpsKind};
 use burn::backend::autodiff::Autodiff;
-use burn::backend::flex::{Flex, FlexTensor, Layout};
+use burn::backend::flex::{Flex, FlexTensor};
 use burn::backend::tensor::FloatTensor;
+use burn::backend::AutodiffBackend;
 use burn::backend::{backend_extension, Dispatch, DispatchDevice};
-use burn::backend::{AutodiffBackend, TensorMetadata};
 use burn::prelude::*;
-use burn::tensor::{Bytes, DType, Shape};
 
 use super::{kernels, GridSpec};
+use crate::flex::{dims, tensor as flex_tensor, values};
 
 /// The encoding's primitive operations (all tensors `f32`, row-major; see [`super::kernels`] for shapes).
 #[backend_extension(Flex, Cube: cfg(feature = "wgpu"), Autodiff)]
@@ -77,41 +77,15 @@ pub fn encode(points: Tensor<2>, table: Tensor<2>, spec: &GridSpec) -> Tensor<2>
     ))
 }
 
-/// A contiguous `f32` view of a flex tensor (copying only when it is strided).
-fn values(t: &FlexTensor) -> std::borrow::Cow<'_, [f32]> {
-    assert_eq!(
-        t.dtype(),
-        DType::F32,
-        "the hash-grid kernels take f32 tensors"
-    );
-    match t.as_slice::<f32>() {
-        Some(s) => std::borrow::Cow::Borrowed(s),
-        None => std::borrow::Cow::Owned(
-            t.to_contiguous()
-                .as_slice::<f32>()
-                .expect("contiguous")
-                .to_vec(),
-        ),
-    }
-}
-
-fn flex_tensor(data: Vec<f32>, dims: [usize; 2]) -> FlexTensor {
-    FlexTensor::new(
-        Bytes::from_elems(data),
-        Layout::contiguous(Shape::new(dims)),
-        DType::F32,
-    )
-}
-
 fn rows(t: &FlexTensor) -> usize {
-    t.shape().dims::<2>()[0]
+    dims(t)[0]
 }
 
 impl HashGridBackend for Flex {
     fn hash_grid_encode(points: FlexTensor, table: FlexTensor, spec: GridSpec) -> FlexTensor {
         let n = rows(&points);
         assert_eq!(
-            table.shape().dims::<2>(),
+            dims(&table),
             [spec.table_rows(), spec.features],
             "hash grid table"
         );

@@ -8,6 +8,7 @@
 use rayon::prelude::*;
 
 use super::GridSpec;
+use crate::trilinear::{corner_weight_derivatives, corner_weights};
 
 /// Fewest points per rayon task of the per-point kernels.
 const MIN_CHUNK: usize = 256;
@@ -122,32 +123,6 @@ struct Corners {
     inside: [bool; 3],
 }
 
-impl Corners {
-    /// Weight of each axis side: `[1 − t, t]` per axis.
-    #[inline(always)]
-    fn sides(&self) -> [[f32; 2]; 3] {
-        self.frac.map(|t| [1.0 - t, t])
-    }
-
-    /// Trilinear weights of the eight corners.
-    #[inline(always)]
-    fn weights(&self) -> [f32; 8] {
-        let s = self.sides();
-        std::array::from_fn(|c| s[0][c & 1] * s[1][(c >> 1) & 1] * s[2][(c >> 2) & 1])
-    }
-
-    /// `∂ weight_c / ∂ t_a` for every corner and axis.
-    #[inline(always)]
-    fn weight_derivatives(&self) -> [[f32; 3]; 8] {
-        let s = self.sides();
-        let sign = |c: usize, a: usize| if (c >> a) & 1 == 1 { 1.0 } else { -1.0 };
-        std::array::from_fn(|c| {
-            let (x, y, z) = (s[0][c & 1], s[1][(c >> 1) & 1], s[2][(c >> 2) & 1]);
-            [sign(c, 0) * y * z, sign(c, 1) * x * z, sign(c, 2) * x * y]
-        })
-    }
-}
-
 /// The primes of Instant-NGP's spatial hash (the first is 1).
 pub(crate) const HASH_PRIMES: [u32; 3] = [1, 2_654_435_761, 805_459_861];
 
@@ -207,7 +182,7 @@ fn encode_with<const WIDTH: usize>(
                     let feats = &mut row[l * f..(l + 1) * f];
                     feats.fill(0.0);
                     let corners = spec.corners(level, unit);
-                    for (&r, w) in corners.rows.iter().zip(corners.weights()) {
+                    for (&r, w) in corners.rows.iter().zip(corner_weights(corners.frac)) {
                         for (o, t) in feats.iter_mut().zip(&level_table[r * f..(r + 1) * f]) {
                             *o += w * t;
                         }
@@ -243,7 +218,7 @@ fn table_grad_with<const WIDTH: usize>(
                     continue;
                 }
                 let corners = spec.corners(level, unit);
-                for (&r, w) in corners.rows.iter().zip(corners.weights()) {
+                for (&r, w) in corners.rows.iter().zip(corner_weights(corners.frac)) {
                     for (t, gv) in rows[r * f..(r + 1) * f].iter_mut().zip(g) {
                         *t += w * gv;
                     }
@@ -294,7 +269,11 @@ fn points_grad_with<const WIDTH: usize>(
                     let g = &g[l * f..(l + 1) * f];
                     let corners = spec.corners(level, unit);
                     let mut d = [0.0f32; 3];
-                    for (&r, dw) in corners.rows.iter().zip(corners.weight_derivatives()) {
+                    for (&r, dw) in corners
+                        .rows
+                        .iter()
+                        .zip(corner_weight_derivatives(corners.frac))
+                    {
                         let dot: f32 = g
                             .iter()
                             .zip(&level_table[r * f..(r + 1) * f])
@@ -364,7 +343,10 @@ fn grads_with<const WIDTH: usize>(
                         continue;
                     }
                     let corners = spec.corners(level, unit);
-                    let (weights, derivatives) = (corners.weights(), corners.weight_derivatives());
+                    let (weights, derivatives) = (
+                        corner_weights(corners.frac),
+                        corner_weight_derivatives(corners.frac),
+                    );
                     let mut d = [0.0f32; 3];
                     for ((&r, w), dw) in corners.rows.iter().zip(weights).zip(derivatives) {
                         let mut dot = 0.0;

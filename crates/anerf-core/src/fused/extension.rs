@@ -1,0 +1,333 @@
+//! The fused warp operations as a Burn backend extension: the flex backend runs [`super::kernels`], the
+//! autodiff backend wraps it with the hand-written backward passes. Other backends are not listed (calling
+//! them there panics); [`super::available`] keeps them on the tensor reference.
+
+use burn::backend::autodiff::checkpoint::base::Checkpointer;
+use burn::backend::autodiff::checkpoint::strategy::CheckpointStrategy;
+use burn::backend::autodiff::grads::Gradients;
+use burn::backend::autodiff::ops::{Backward, Ops, OpsKind};
+use burn::backend::autodiff::Autodiff;
+use burn::backend::flex::{Flex, FlexTensor};
+use burn::backend::tensor::FloatTensor;
+use burn::backend::{backend_extension, AutodiffBackend};
+
+use super::kernels::{self, TrilinearGrid};
+use crate::flex::{dims, tensor, values};
+
+/// The fused operations (all tensors `f32`, row-major; shapes as in [`super::kernels`]).
+#[backend_extension(Flex, Autodiff)]
+pub trait FusedBackend: burn::backend::Backend {
+    /// Inverse skinning: points `[N, 3]`, weights `[N, K]`, bones `[K, 12]` → canonical points `[N, 3]`.
+    fn inverse_skinning(
+        points: FloatTensor<Self>,
+        weights: FloatTensor<Self>,
+        bones: FloatTensor<Self>,
+    ) -> FloatTensor<Self>;
+
+    /// The gradients of [`Self::inverse_skinning`] from its output gradient: `(points, weights)`.
+    fn inverse_skinning_grads(
+        points: FloatTensor<Self>,
+        weights: FloatTensor<Self>,
+        bones: FloatTensor<Self>,
+        grad: FloatTensor<Self>,
+    ) -> (FloatTensor<Self>, FloatTensor<Self>);
+
+    /// `softmax(log(prior + ε) + residual)` per row, `[N, K]`.
+    fn prior_softmax(prior: FloatTensor<Self>, residual: FloatTensor<Self>) -> FloatTensor<Self>;
+
+    /// The logits' gradient of [`Self::prior_softmax`] from its output `weights` and output gradient.
+    fn prior_softmax_logit_grad(
+        weights: FloatTensor<Self>,
+        grad: FloatTensor<Self>,
+    ) -> FloatTensor<Self>;
+
+    /// Trilinear interpolation of the table's rows `[nodes, C]` at points `[N, 3]` → `[N, C]`.
+    fn trilinear(
+        points: FloatTensor<Self>,
+        table: FloatTensor<Self>,
+        grid: TrilinearGrid,
+    ) -> FloatTensor<Self>;
+
+    /// The points' gradient `[N, 3]` of [`Self::trilinear`] from its output gradient (the table is constant).
+    fn trilinear_points_grad(
+        points: FloatTensor<Self>,
+        table: FloatTensor<Self>,
+        grad: FloatTensor<Self>,
+        grid: TrilinearGrid,
+    ) -> FloatTensor<Self>;
+}
+
+impl FusedBackend for Flex {
+    fn inverse_skinning(points: FlexTensor, weights: FlexTensor, bones: FlexTensor) -> FlexTensor {
+        let n = check_skinning(&points, &weights, &bones);
+        let mut out = vec![0.0; n * 3];
+        kernels::inverse_skinning(
+            &values(&points),
+            &values(&weights),
+            &values(&bones),
+            &mut out,
+        );
+        tensor(out, [n, 3])
+    }
+
+    fn inverse_skinning_grads(
+        points: FlexTensor,
+        weights: FlexTensor,
+        bones: FlexTensor,
+        grad: FlexTensor,
+    ) -> (FlexTensor, FlexTensor) {
+        let n = check_skinning(&points, &weights, &bones);
+        assert_eq!(dims(&grad), [n, 3], "inverse skinning: output gradient");
+        let k = dims(&bones)[0];
+        let (mut grad_points, mut grad_weights) = (vec![0.0; n * 3], vec![0.0; n * k]);
+        kernels::inverse_skinning_grads(
+            &values(&points),
+            &values(&weights),
+            &values(&bones),
+            &values(&grad),
+            &mut grad_points,
+            &mut grad_weights,
+        );
+        (tensor(grad_points, [n, 3]), tensor(grad_weights, [n, k]))
+    }
+
+    fn prior_softmax(prior: FlexTensor, residual: FlexTensor) -> FlexTensor {
+        let [n, k] = dims(&prior);
+        assert_eq!(dims(&residual), [n, k], "prior softmax: residual");
+        let mut out = vec![0.0; n * k];
+        kernels::prior_softmax(&values(&prior), &values(&residual), k, &mut out);
+        tensor(out, [n, k])
+    }
+
+    fn prior_softmax_logit_grad(weights: FlexTensor, grad: FlexTensor) -> FlexTensor {
+        let [n, k] = dims(&weights);
+        assert_eq!(dims(&grad), [n, k], "prior softmax: output gradient");
+        let mut out = vec![0.0; n * k];
+        kernels::prior_softmax_logit_grad(&values(&weights), &values(&grad), k, &mut out);
+        tensor(out, [n, k])
+    }
+
+    fn trilinear(points: FlexTensor, table: FlexTensor, grid: TrilinearGrid) -> FlexTensor {
+        let (n, c) = check_trilinear(&points, &table, &grid);
+        let mut out = vec![0.0; n * c];
+        kernels::trilinear(&values(&points), &values(&table), &grid, &mut out);
+        tensor(out, [n, c])
+    }
+
+    fn trilinear_points_grad(
+        points: FlexTensor,
+        table: FlexTensor,
+        grad: FlexTensor,
+        grid: TrilinearGrid,
+    ) -> FlexTensor {
+        let (n, c) = check_trilinear(&points, &table, &grid);
+        assert_eq!(dims(&grad), [n, c], "trilinear: output gradient");
+        let mut out = vec![0.0; n * 3];
+        kernels::trilinear_points_grad(
+            &values(&points),
+            &values(&table),
+            &values(&grad),
+            &grid,
+            &mut out,
+        );
+        tensor(out, [n, 3])
+    }
+}
+
+/// Checks the shapes of a trilinear call; returns `(N, C)`.
+fn check_trilinear(
+    points: &FlexTensor,
+    table: &FlexTensor,
+    grid: &TrilinearGrid,
+) -> (usize, usize) {
+    let [n, three] = dims(points);
+    let [nodes, c] = dims(table);
+    assert_eq!(three, 3, "trilinear: points [N, 3]");
+    assert_eq!(
+        nodes,
+        grid.dims.iter().product::<usize>(),
+        "trilinear: table rows = grid nodes"
+    );
+    (n, c)
+}
+
+/// Checks the shapes of an inverse-skinning call; returns `N`.
+fn check_skinning(points: &FlexTensor, weights: &FlexTensor, bones: &FlexTensor) -> usize {
+    let [n, three] = dims(points);
+    let [k, twelve] = dims(bones);
+    assert_eq!(
+        (three, twelve),
+        (3, 12),
+        "inverse skinning: points [N, 3], bones [K, 12]"
+    );
+    assert_eq!(dims(weights), [n, k], "inverse skinning: weights [N, K]");
+    n
+}
+
+/// The backward step of [`FusedBackend::inverse_skinning`]; the state holds points, weights and bones.
+#[derive(Debug)]
+struct InverseSkinningBackward;
+
+impl<B: FusedBackend> Backward<B, 2> for InverseSkinningBackward {
+    type State = (FloatTensor<B>, FloatTensor<B>, FloatTensor<B>);
+
+    fn backward(self, ops: Ops<Self::State, 2>, grads: &mut Gradients, _: &mut Checkpointer) {
+        let [points_node, weights_node] = ops.parents;
+        let grad = grads.consume::<B>(&ops.node);
+        let (points, weights, bones) = ops.state;
+        let (grad_points, grad_weights) = B::inverse_skinning_grads(points, weights, bones, grad);
+        if let Some(node) = points_node {
+            grads.register::<B>(node.id, grad_points);
+        }
+        if let Some(node) = weights_node {
+            grads.register::<B>(node.id, grad_weights);
+        }
+    }
+}
+
+/// The backward step of [`FusedBackend::prior_softmax`]; the state holds the prior and the output.
+#[derive(Debug)]
+struct PriorSoftmaxBackward;
+
+impl<B: FusedBackend> Backward<B, 2> for PriorSoftmaxBackward {
+    type State = (FloatTensor<B>, FloatTensor<B>);
+
+    fn backward(self, ops: Ops<Self::State, 2>, grads: &mut Gradients, _: &mut Checkpointer) {
+        let [prior_node, residual_node] = ops.parents;
+        let grad = grads.consume::<B>(&ops.node);
+        let (prior, weights) = ops.state;
+        let logits = B::prior_softmax_logit_grad(weights, grad);
+        if let Some(node) = prior_node {
+            // ∂ log(w^s + ε) / ∂ w^s = 1 / (w^s + ε).
+            let shifted = B::float_add_scalar(prior, kernels::PRIOR_EPSILON.into());
+            grads.register::<B>(node.id, B::float_div(logits.clone(), shifted));
+        }
+        if let Some(node) = residual_node {
+            grads.register::<B>(node.id, logits);
+        }
+    }
+}
+
+/// The backward step of [`FusedBackend::trilinear`]; the state holds the points, the table and the grid.
+#[derive(Debug)]
+struct TrilinearBackward;
+
+impl<B: FusedBackend> Backward<B, 1> for TrilinearBackward {
+    type State = (FloatTensor<B>, FloatTensor<B>, TrilinearGrid);
+
+    fn backward(self, ops: Ops<Self::State, 1>, grads: &mut Gradients, _: &mut Checkpointer) {
+        let [points_node] = ops.parents;
+        let grad = grads.consume::<B>(&ops.node);
+        let (points, table, grid) = ops.state;
+        if let Some(node) = points_node {
+            grads.register::<B>(node.id, B::trilinear_points_grad(points, table, grad, grid));
+        }
+    }
+}
+
+impl<B: FusedBackend, C: CheckpointStrategy> FusedBackend for Autodiff<B, C> {
+    fn inverse_skinning(
+        points: FloatTensor<Self>,
+        weights: FloatTensor<Self>,
+        bones: FloatTensor<Self>,
+    ) -> FloatTensor<Self> {
+        // The bones are constants: only the points and the weights are parents.
+        let bones = bones.into_primitive();
+        match InverseSkinningBackward
+            .prepare::<C>([points.node(), weights.node()])
+            .compute_bound()
+            .stateful()
+        {
+            OpsKind::Tracked(prep) => {
+                let (p, w) = (points.into_primitive(), weights.into_primitive());
+                let out = B::inverse_skinning(p.clone(), w.clone(), bones.clone());
+                prep.finish((p, w, bones), out)
+            }
+            OpsKind::UnTracked(prep) => prep.finish(B::inverse_skinning(
+                points.into_primitive(),
+                weights.into_primitive(),
+                bones,
+            )),
+        }
+    }
+
+    fn inverse_skinning_grads(
+        points: FloatTensor<Self>,
+        weights: FloatTensor<Self>,
+        bones: FloatTensor<Self>,
+        grad: FloatTensor<Self>,
+    ) -> (FloatTensor<Self>, FloatTensor<Self>) {
+        let (p, w) = B::inverse_skinning_grads(
+            points.into_primitive(),
+            weights.into_primitive(),
+            bones.into_primitive(),
+            grad.into_primitive(),
+        );
+        (Self::from_inner(p), Self::from_inner(w))
+    }
+
+    fn prior_softmax(prior: FloatTensor<Self>, residual: FloatTensor<Self>) -> FloatTensor<Self> {
+        match PriorSoftmaxBackward
+            .prepare::<C>([prior.node(), residual.node()])
+            .compute_bound()
+            .stateful()
+        {
+            OpsKind::Tracked(prep) => {
+                let p = prior.into_primitive();
+                let out = B::prior_softmax(p.clone(), residual.into_primitive());
+                prep.finish((p, out.clone()), out)
+            }
+            OpsKind::UnTracked(prep) => prep.finish(B::prior_softmax(
+                prior.into_primitive(),
+                residual.into_primitive(),
+            )),
+        }
+    }
+
+    fn prior_softmax_logit_grad(
+        weights: FloatTensor<Self>,
+        grad: FloatTensor<Self>,
+    ) -> FloatTensor<Self> {
+        Self::from_inner(B::prior_softmax_logit_grad(
+            weights.into_primitive(),
+            grad.into_primitive(),
+        ))
+    }
+
+    fn trilinear(
+        points: FloatTensor<Self>,
+        table: FloatTensor<Self>,
+        grid: TrilinearGrid,
+    ) -> FloatTensor<Self> {
+        // The table is constant: only the points are a parent.
+        let table = table.into_primitive();
+        match TrilinearBackward
+            .prepare::<C>([points.node()])
+            .compute_bound()
+            .stateful()
+        {
+            OpsKind::Tracked(prep) => {
+                let p = points.into_primitive();
+                let out = B::trilinear(p.clone(), table.clone(), grid);
+                prep.finish((p, table, grid), out)
+            }
+            OpsKind::UnTracked(prep) => {
+                prep.finish(B::trilinear(points.into_primitive(), table, grid))
+            }
+        }
+    }
+
+    fn trilinear_points_grad(
+        points: FloatTensor<Self>,
+        table: FloatTensor<Self>,
+        grad: FloatTensor<Self>,
+        grid: TrilinearGrid,
+    ) -> FloatTensor<Self> {
+        Self::from_inner(B::trilinear_points_grad(
+            points.into_primitive(),
+            table.into_primitive(),
+            grad.into_primitive(),
+            grid,
+        ))
+    }
+}

@@ -1,0 +1,143 @@
+use burn::prelude::*;
+use glam::{Mat4, Vec3};
+
+use super::*;
+use crate::device::cpu_device;
+use crate::geometry::lbs::tests::{random_skeleton_and_pose, TestRng};
+use crate::geometry::{BoneMatrices, BoneTransforms, CanonicalPose};
+use crate::model::blend::prior_softmax_reference;
+use crate::tensor::{assert_close, from_rows, to_host};
+
+/// Values and input gradients of `Σ f(a, b) ⊙ c` for a fixed random `c`.
+struct Differentiated {
+    value: Vec<f32>,
+    grad_a: Vec<f32>,
+    grad_b: Vec<f32>,
+}
+
+fn differentiate(
+    a: &[f32],
+    b: &[f32],
+    rows: usize,
+    f: impl Fn(Tensor<2>, Tensor<2>) -> Tensor<2>,
+) -> Differentiated {
+    let device = cpu_device().autodiff();
+    let ta = from_rows(a, rows, a.len() / rows, &device).require_grad();
+    let tb = from_rows(b, rows, b.len() / rows, &device).require_grad();
+    let out = f(ta.clone(), tb.clone());
+    let [_, cols] = out.dims();
+    let mut rng = TestRng(99);
+    let coeff: Vec<f32> = (0..rows * cols).map(|_| rng.range(-1.0, 1.0)).collect();
+    let grads = (out.clone() * from_rows(&coeff, rows, cols, &device))
+        .sum()
+        .backward();
+    Differentiated {
+        value: to_host(out),
+        grad_a: to_host(ta.grad(&grads).expect("a is tracked")),
+        grad_b: to_host(tb.grad(&grads).expect("b is tracked")),
+    }
+}
+
+fn compare(what: &str, got: &Differentiated, expected: &Differentiated, tolerance: f32) {
+    assert_close(
+        &format!("{what}: value"),
+        &got.value,
+        &expected.value,
+        tolerance,
+    );
+    assert_close(
+        &format!("{what}: first input's gradient"),
+        &got.grad_a,
+        &expected.grad_a,
+        tolerance,
+    );
+    assert_close(
+        &format!("{what}: second input's gradient"),
+        &got.grad_b,
+        &expected.grad_b,
+        tolerance,
+    );
+}
+
+/// Points and skinning-like weights for `n` samples of a random posed skeleton's 24 bones.
+fn skinning_inputs(seed: u64, n: usize) -> (BoneTransforms, Vec<f32>, Vec<f32>) {
+    let mut rng = TestRng(seed);
+    let (skeleton, pose) = random_skeleton_and_pose(&mut rng);
+    let bones = skeleton
+        .bone_transforms(&pose, CanonicalPose::TPose)
+        .expect("a valid pose");
+    let points = (0..n).flat_map(|_| rng.vec3(1.0).to_array()).collect();
+    let weights = (0..n).flat_map(|_| rng.weights(24)).collect();
+    (bones, points, weights)
+}
+
+fn skinning(
+    bones: &BoneTransforms,
+    points: &[f32],
+    weights: &[f32],
+    fused: bool,
+) -> Differentiated {
+    let n = points.len() / 3;
+    differentiate(points, weights, n, |p, w| {
+        let matrices = BoneMatrices::new(bones, &p.device());
+        assert!(available(&p.device()), "the test device runs the kernels");
+        if fused {
+            matrices.inverse(p, w)
+        } else {
+            matrices.inverse_reference(p, w)
+        }
+    })
+}
+
+#[test]
+fn inverse_skinning_matches_the_tensor_reference_in_value_and_gradients() {
+    // More points than one kernel block, so that several rayon tasks split them.
+    let (bones, points, weights) = skinning_inputs(21, 1_500);
+    let got = skinning(&bones, &points, &weights, true);
+    let expected = skinning(&bones, &points, &weights, false);
+    compare("inverse skinning", &got, &expected, 2e-5);
+}
+
+/// Weights split between a bone and its half-turn leave a singular blended rotation: the guard replaces the
+/// determinant, and neither implementation passes a gradient through the replaced value.
+#[test]
+fn guarded_singular_blends_match_the_reference() {
+    let bones = BoneTransforms::from_matrices(vec![
+        Mat4::from_translation(Vec3::new(0.1, 0.0, 0.0)),
+        Mat4::from_rotation_z(std::f32::consts::PI),
+        Mat4::from_rotation_x(0.3),
+    ])
+    .expect("finite transforms");
+    let points = [0.2, -0.4, 0.5, 1.0, 1.0, 1.0, -0.3, 0.1, 0.0];
+    // Rows 0 and 1 are singular (guarded), row 2 is an ordinary blend.
+    let weights = [0.5, 0.5, 0.0, 0.5, 0.5, 0.0, 0.2, 0.1, 0.7];
+    let got = skinning(&bones, &points, &weights, true);
+    let expected = skinning(&bones, &points, &weights, false);
+    assert!(got.value.iter().chain(&got.grad_b).all(|v| v.is_finite()));
+    compare("guarded inverse skinning", &got, &expected, 2e-5);
+}
+
+fn softmax_inputs(seed: u64, n: usize, k: usize) -> (Vec<f32>, Vec<f32>) {
+    let mut rng = TestRng(seed);
+    let mut prior: Vec<f32> = (0..n).flat_map(|_| rng.weights(k)).collect();
+    // Exact zeros, as outside a joint's support: log(ε) must stay finite.
+    prior.iter_mut().step_by(5).for_each(|w| *w = 0.0);
+    let residual = (0..n * k).map(|_| rng.range(-3.0, 3.0)).collect();
+    (prior, residual)
+}
+
+#[test]
+fn prior_softmax_matches_the_tensor_reference_in_value_and_gradients() {
+    let (n, k) = (1_200, 24);
+    let (prior, residual) = softmax_inputs(7, n, k);
+    let got = differentiate(&prior, &residual, n, prior_softmax);
+    let expected = differentiate(&prior, &residual, n, prior_softmax_reference);
+    for row in got.value.chunks_exact(k) {
+        assert!(
+            (row.iter().sum::<f32>() - 1.0).abs() < 1e-5,
+            "rows sum to 1"
+        );
+    }
+    // The prior's gradient is divided by w^s + 1e-9: relative to values up to 1e9.
+    compare("prior softmax", &got, &expected, 2e-5);
+}
