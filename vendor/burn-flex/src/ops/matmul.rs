@@ -261,8 +261,13 @@ fn matmul_2d_strided<T: GemmScalar>(lhs: FlexTensor, rhs: FlexTensor) -> FlexTen
     let rhs_ptr = unsafe { rhs_data.as_ptr().add(rhs.layout().start_offset()) };
 
     let out_shape = Shape::from(vec![m, n]);
-    let mut output = FlexTensor::empty(out_shape, T::dtype());
-    let out_data: &mut [T] = output.storage_mut();
+    if k == 0 {
+        return FlexTensor::zeros(out_shape, T::dtype());
+    }
+    // anerf patch: gemm is called without reading its destination (`read_dst = false`) and writes every
+    // element, so the output is allocated without the zero fill of `FlexTensor::empty` (a memset of every
+    // matmul output): gemm writes into the vector's spare capacity, and the length is set afterwards.
+    let mut out_data: alloc::vec::Vec<T> = alloc::vec::Vec::with_capacity(m * n);
 
     let parallelism = get_parallelism(m, n, k);
 
@@ -271,7 +276,7 @@ fn matmul_2d_strided<T: GemmScalar>(lhs: FlexTensor, rhs: FlexTensor) -> FlexTen
             m,
             n,
             k,
-            out_data.as_mut_ptr(),
+            out_data.spare_capacity_mut().as_mut_ptr() as *mut T,
             1,
             n as isize,
             lhs_ptr,
@@ -282,9 +287,15 @@ fn matmul_2d_strided<T: GemmScalar>(lhs: FlexTensor, rhs: FlexTensor) -> FlexTen
             rhs_row_stride,
             parallelism,
         );
+        // SAFETY: gemm wrote all `m · n` elements (k > 0, destination not read).
+        out_data.set_len(m * n);
     }
 
-    output
+    FlexTensor::new(
+        Bytes::from_elems(out_data),
+        Layout::contiguous(out_shape),
+        T::dtype(),
+    )
 }
 
 /// Strided gemm call for one matrix. Wraps `gemm::gemm` with GemmScalar zero/one.
