@@ -69,6 +69,12 @@ pub struct BenchArgs {
     /// cache buys).
     #[arg(long)]
     pub system_allocator: bool,
+    /// Time the presets' steps in turn (one step of each, then the next round) instead of one preset after
+    /// the other, so that drift in the machine's speed reaches every preset alike; also prints the median of
+    /// the per-round ratios to the first preset. Step memory is then not reported (one process holds every
+    /// model).
+    #[arg(long)]
+    pub interleave: bool,
 }
 
 /// One line of `--describe`.
@@ -150,10 +156,24 @@ pub fn run(args: &BenchArgs) -> Result<Vec<PresetFigures>> {
         );
     }
     let mut all = Vec::new();
+    let mut interleaved = if args.interleave && args.steps > 0 {
+        let configs: Vec<ModelConfig> = presets.iter().map(|p| p.config()).collect();
+        time_steps_interleaved(
+            &configs,
+            args.points,
+            args.steps,
+            &device.clone().autodiff(),
+        )
+    } else {
+        Vec::new()
+    }
+    .into_iter();
     for preset in presets {
         let load_before = load_average();
         let config = preset.config();
-        let (step_times, step_peak_mib) = if args.steps > 0 {
+        let (step_times, step_peak_mib) = if let Some(times) = interleaved.next() {
+            (times, None)
+        } else if args.steps > 0 {
             reset_peak_memory();
             let times = time_steps(&config, args.points, args.steps, &device.clone().autodiff());
             (times, peak_memory_mib())
@@ -185,7 +205,35 @@ pub fn run(args: &BenchArgs) -> Result<Vec<PresetFigures>> {
         }
         all.push(figures);
     }
+    if args.interleave && !args.json {
+        print_round_ratios(&all);
+    }
     Ok(all)
+}
+
+/// With `--interleave`: each preset's step time over the first preset's, round by round (the steps of one
+/// round ran back to back), and the median of those ratios.
+fn print_round_ratios(all: &[PresetFigures]) {
+    let Some((first, rest)) = all.split_first() else {
+        return;
+    };
+    for other in rest {
+        let ratios: Vec<f64> = other
+            .step_seconds
+            .iter()
+            .zip(&first.step_seconds)
+            .map(|(o, f)| o / f)
+            .collect();
+        if let Some(m) = median(&ratios) {
+            let rounds: Vec<String> = ratios.iter().map(|r| format!("{r:.2}")).collect();
+            println!(
+                "{} / {} step, per round: {}; median {m:.2}",
+                other.preset,
+                first.preset,
+                rounds.join(" ")
+            );
+        }
+    }
 }
 
 fn print_row(f: &PresetFigures) {
@@ -357,6 +405,44 @@ pub struct StepTime {
     pub cpu: f64,
 }
 
+/// One preset's training step on a fixed workload: its inputs, model and optimiser.
+struct StepRunner {
+    work: StepWorkload,
+    model: Option<AnimatableNerf>,
+    optim: ModuleOptimizer,
+    device: Device,
+}
+
+impl StepRunner {
+    fn new(config: &ModelConfig, points: usize, device: &Device) -> Self {
+        let work = StepWorkload::new(points, 7, device);
+        let model = work.model(config, device);
+        Self {
+            work,
+            model: Some(model),
+            optim: bench_optimizer(),
+            device: device.clone(),
+        }
+    }
+
+    /// One forward, backward and Adam step, timed.
+    fn step(&mut self) -> StepTime {
+        let (started, cpu) = (Instant::now(), process_cpu_seconds());
+        let model = self
+            .model
+            .take()
+            .expect("the model is back after every step");
+        let loss = self.work.loss(&model);
+        let grads = GradientsParams::from_grads(loss.backward(), &model);
+        self.model = Some(self.optim.step(5e-4, model, grads));
+        self.device.sync().expect("the device finishes its queue");
+        StepTime {
+            wall: started.elapsed().as_secs_f64(),
+            cpu: process_cpu_seconds() - cpu,
+        }
+    }
+}
+
 /// One warm-up step, then `steps` timed steps of forward, backward and Adam on an autodiff `device`.
 pub fn time_steps(
     config: &ModelConfig,
@@ -364,21 +450,30 @@ pub fn time_steps(
     steps: usize,
     device: &Device,
 ) -> Vec<StepTime> {
-    let work = StepWorkload::new(points, 7, device);
-    let mut model = work.model(config, device);
-    let mut optim = bench_optimizer();
-    let mut times = Vec::with_capacity(steps);
-    for i in 0..=steps {
-        let (started, cpu) = (Instant::now(), process_cpu_seconds());
-        let loss = work.loss(&model);
-        let grads = GradientsParams::from_grads(loss.backward(), &model);
-        model = optim.step(5e-4, model, grads);
-        device.sync().expect("the device finishes its queue");
-        if i > 0 {
-            times.push(StepTime {
-                wall: started.elapsed().as_secs_f64(),
-                cpu: process_cpu_seconds() - cpu,
-            });
+    let mut runner = StepRunner::new(config, points, device);
+    runner.step();
+    (0..steps).map(|_| runner.step()).collect()
+}
+
+/// [`time_steps`] of several configurations in rounds: a warm-up step of each, then per round one timed step
+/// of each in turn. Returns each configuration's step times.
+pub fn time_steps_interleaved(
+    configs: &[ModelConfig],
+    points: usize,
+    steps: usize,
+    device: &Device,
+) -> Vec<Vec<StepTime>> {
+    let mut runners: Vec<StepRunner> = configs
+        .iter()
+        .map(|c| StepRunner::new(c, points, device))
+        .collect();
+    runners.iter_mut().for_each(|r| {
+        r.step();
+    });
+    let mut times = vec![Vec::with_capacity(steps); configs.len()];
+    for _ in 0..steps {
+        for (runner, times) in runners.iter_mut().zip(&mut times) {
+            times.push(runner.step());
         }
     }
     times
@@ -500,21 +595,35 @@ mod tests {
         assert_eq!(median(&[]), None);
     }
 
-    /// The tiny preset's step runs and lowers its own loss on the fixed batch.
+    /// The tiny preset's timed step runs and lowers its own loss on the fixed batch.
     #[test]
     fn steps_run_and_train() {
         let device = anerf_core::device::cpu_device().autodiff();
-        let work = StepWorkload::new(256, 1, &device);
-        let config = ModelPreset::Tiny.config();
-        let mut model = work.model(&config, &device);
-        let mut optim = bench_optimizer();
-        let first = work.loss(&model).into_scalar::<f32>();
+        let mut runner = StepRunner::new(&ModelPreset::Tiny.config(), 256, &device);
+        let loss = |r: &StepRunner| r.work.loss(r.model.as_ref().unwrap()).into_scalar::<f32>();
+        let first = loss(&runner);
         for _ in 0..20 {
-            let loss = work.loss(&model);
-            let grads = GradientsParams::from_grads(loss.backward(), &model);
-            model = optim.step(5e-3, model, grads);
+            let t = runner.step();
+            assert!(t.wall > 0.0 && t.wall.is_finite());
         }
-        let last = work.loss(&model).into_scalar::<f32>();
+        let last = loss(&runner);
         assert!(last.is_finite() && last < first, "{first} → {last}");
+    }
+
+    /// Interleaved rounds give every configuration its own timed steps.
+    #[test]
+    fn interleaved_rounds_time_every_configuration() {
+        let device = anerf_core::device::cpu_device().autodiff();
+        let tiny = ModelPreset::Tiny.config();
+        let wider = ModelConfig {
+            width: 48,
+            ..tiny.clone()
+        };
+        let times = time_steps_interleaved(&[tiny, wider], 128, 3, &device);
+        assert_eq!(times.len(), 2);
+        for t in &times {
+            assert_eq!(t.len(), 3);
+            assert!(t.iter().all(|s| s.wall > 0.0 && s.wall.is_finite()));
+        }
     }
 }
