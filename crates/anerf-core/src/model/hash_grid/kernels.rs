@@ -179,14 +179,16 @@ fn encode_with<const WIDTH: usize>(
             for (l, level) in levels.iter().enumerate() {
                 let level_table = &table[l * spec.table_size * f..(l + 1) * spec.table_size * f];
                 for (row, unit) in block.chunks_exact_mut(width).zip(&units) {
-                    let feats = &mut row[l * f..(l + 1) * f];
-                    feats.fill(0.0);
                     let corners = spec.corners(level, unit);
+                    // Accumulated in registers and stored once (`F ≤ 8`, HashGridConfig::validate):
+                    // accumulating in the output row made every corner wait for the previous one's store.
+                    let mut acc = [0.0f32; 8];
                     for (&r, w) in corners.rows.iter().zip(corner_weights(corners.frac)) {
-                        for (o, t) in feats.iter_mut().zip(&level_table[r * f..(r + 1) * f]) {
+                        for (o, t) in acc[..f].iter_mut().zip(&level_table[r * f..(r + 1) * f]) {
                             *o += w * t;
                         }
                     }
+                    row[l * f..(l + 1) * f].copy_from_slice(&acc[..f]);
                 }
             }
         });
