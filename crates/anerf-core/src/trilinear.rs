@@ -19,3 +19,27 @@ pub(crate) fn corner_weight_derivatives(frac: [f32; 3]) -> [[f32; 3]; 8] {
         [sign(c, 0) * y * z, sign(c, 1) * x * z, sign(c, 2) * x * y]
     })
 }
+
+/// `Σ_c ∂weight_c/∂frac · ⟨grad, table[row_c]⟩`: the derivative of `grad`'s product with the interpolation of
+/// the `grad.len()`-wide rows `rows` of `table`, with respect to the point's position in its cell.
+#[inline(always)]
+pub(crate) fn cell_position_gradient(
+    rows: &[usize; 8],
+    frac: [f32; 3],
+    grad: &[f32],
+    table: &[f32],
+) -> [f32; 3] {
+    let width = grad.len();
+    let mut d = [0.0f32; 3];
+    for (&r, dw) in rows.iter().zip(corner_weight_derivatives(frac)) {
+        let dot: f32 = grad
+            .iter()
+            .zip(&table[r * width..(r + 1) * width])
+            .map(|(a, b)| a * b)
+            .sum();
+        for (d, dw) in d.iter_mut().zip(dw) {
+            *d += dot * dw;
+        }
+    }
+    d
+}

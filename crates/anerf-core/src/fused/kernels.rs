@@ -6,7 +6,7 @@ use glam::Vec3;
 use rayon::prelude::*;
 
 use crate::geometry::skinning::DET_GUARD;
-use crate::trilinear::{corner_weight_derivatives, corner_weights};
+use crate::trilinear::{cell_position_gradient, corner_weights};
 
 /// Points per rayon task: one point's work is a few hundred flops, a task needs thousands.
 const BLOCK: usize = 512;
@@ -275,17 +275,7 @@ pub fn trilinear_points_grad(
                 .zip(grad.chunks_exact(c))
             {
                 let cell = grid.cell(p);
-                let mut d = [0.0f32; 3];
-                for (&r, dw) in cell.rows.iter().zip(corner_weight_derivatives(cell.frac)) {
-                    let dot: f32 = g
-                        .iter()
-                        .zip(&table[r * c..(r + 1) * c])
-                        .map(|(a, b)| a * b)
-                        .sum();
-                    for (d, dw) in d.iter_mut().zip(dw) {
-                        *d += dot * dw;
-                    }
-                }
+                let d = cell_position_gradient(&cell.rows, cell.frac, g, table);
                 for a in 0..3 {
                     o[a] = if cell.inside[a] {
                         d[a] * grid.scale[a]

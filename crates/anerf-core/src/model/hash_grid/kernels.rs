@@ -8,7 +8,7 @@
 use rayon::prelude::*;
 
 use super::GridSpec;
-use crate::trilinear::{corner_weight_derivatives, corner_weights};
+use crate::trilinear::{cell_position_gradient, corner_weight_derivatives, corner_weights};
 
 /// Fewest points per rayon task of the per-point kernels.
 const MIN_CHUNK: usize = 256;
@@ -270,21 +270,7 @@ fn points_grad_with<const WIDTH: usize>(
                 {
                     let g = &g[l * f..(l + 1) * f];
                     let corners = spec.corners(level, unit);
-                    let mut d = [0.0f32; 3];
-                    for (&r, dw) in corners
-                        .rows
-                        .iter()
-                        .zip(corner_weight_derivatives(corners.frac))
-                    {
-                        let dot: f32 = g
-                            .iter()
-                            .zip(&level_table[r * f..(r + 1) * f])
-                            .map(|(a, b)| a * b)
-                            .sum();
-                        for (d, dw) in d.iter_mut().zip(dw) {
-                            *d += dot * dw;
-                        }
-                    }
+                    let d = cell_position_gradient(&corners.rows, corners.frac, g, level_table);
                     for a in 0..3 {
                         if corners.inside[a] {
                             acc[a] += d[a] * level.cells_per_metre;
