@@ -1,10 +1,11 @@
 //! Fused CPU operations of the warp: inverse linear blend skinning, the log-softmax blend weights and the
-//! trilinear lookup of a body-model volume, each one hand-written kernel forward and one backward instead of a few dozen autodiff tensor operations on
-//! `[N, 3]`, `[N, 12]` and `[N, K]` tensors (whose allocations and passes dominate the small models' step).
+//! trilinear lookup of a body-model volume, each one hand-written kernel forward and one backward instead of
+//! a few dozen autodiff tensor operations on `[N, 3]`, `[N, 12]` and `[N, K]` tensors (whose allocations and
+//! passes dominate the small models' step).
 //!
 //! Used on the flex backend (with or without autodiff; [`available`]); every other backend runs the tensor
-//! references ([`crate::geometry::BoneMatrices::inverse_reference`],
-//! [`crate::model::blend::prior_softmax_reference`], [`crate::body::VolumeTensor::interpolate_reference`]), which the tests compare the kernels against.
+//! references (`BoneMatrices::inverse_reference`, `blend::prior_softmax_reference`,
+//! `VolumeTensor::interpolate_reference`), which the tests compare the kernels against.
 
 pub mod extension;
 pub mod kernels;
