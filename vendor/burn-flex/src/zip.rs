@@ -262,14 +262,36 @@ where
 /// strided — and monomorphized per call site so LLVM autovectorizes it.
 pub(crate) fn zip_apply_inplace<D, S, F>(nest: &ZipNest, dst: &mut [D], src: &[S], op: F)
 where
-    D: Copy,
-    S: Copy,
-    F: Fn(D, S) -> D,
+    D: Copy + Send,
+    S: Copy + Sync,
+    F: Fn(D, S) -> D + Sync,
 {
     debug_assert!(
         nest.lhs_is_dense(),
         "zip_apply_inplace: destination must be dense"
     );
+    // anerf patch: blocks of the outermost dim on rayon's threads, each walked by the loop below.
+    if nest.ndim >= 1 && nest.lhs_offset == 0 && !nest.shape[..nest.ndim].contains(&0) {
+        let row_len = nest.lhs_strides[0] as usize;
+        let len = row_len * nest.shape[0];
+        crate::par::for_row_blocks(&mut dst[..len], row_len, |first, block| {
+            let mut sub = *nest;
+            sub.shape[0] = block.len() / row_len;
+            sub.rhs_offset = (nest.rhs_offset as isize + first as isize * nest.rhs_strides[0]) as usize;
+            zip_apply_inplace_seq(&sub, block, src, &op);
+        });
+        return;
+    }
+    zip_apply_inplace_seq(nest, dst, src, op)
+}
+
+/// [`zip_apply_inplace`] on the calling thread.
+fn zip_apply_inplace_seq<D, S, F>(nest: &ZipNest, dst: &mut [D], src: &[S], op: F)
+where
+    D: Copy,
+    S: Copy,
+    F: Fn(D, S) -> D,
+{
     if nest.ndim == 0 {
         // All dims were size 1: a single element.
         dst[nest.lhs_offset] = op(dst[nest.lhs_offset], src[nest.rhs_offset]);
