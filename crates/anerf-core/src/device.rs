@@ -7,6 +7,7 @@ use std::str::FromStr;
 use burn::prelude::Device;
 
 pub mod probe;
+pub mod threads;
 
 /// A compute backend the user can ask for by name.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Serialize, serde::Deserialize)]

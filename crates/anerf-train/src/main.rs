@@ -15,7 +15,11 @@ fn main() -> ExitCode {
     // `commands::device` re-runs this binary to check a GPU backend in a child process.
     anerf_core::device::probe::exit_if_probe_child();
     let cli = Cli::parse();
-    match run(cli) {
+    if let Err(e) = anerf_core::device::threads::init_pool() {
+        eprintln!("warning: compute threads keep rayon's defaults: {e}");
+    }
+    // Every command runs on a compute thread, so that the backend's parallel ops fork in place.
+    match anerf_core::device::threads::on_pool(|| run(cli)) {
         Ok(code) => code,
         Err(e) => {
             eprintln!("error: {e:#}");
