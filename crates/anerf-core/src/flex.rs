@@ -43,7 +43,7 @@ mod tests {
     use crate::tensor::{from_rows, to_host};
 
     /// The vendored burn-flex splits element-wise loops over large buffers across threads
-    /// (`vendor/burn-flex/src/par.rs`). Above its threshold (2^17 elements), on unique and shared, dense,
+    /// (`vendor/burn-flex/src/par.rs`). Above its threshold (2^16 elements), on unique and shared, dense,
     /// broadcast and strided operands, every op must give exactly the host's per-element f32 result.
     #[test]
     fn parallel_element_wise_ops_match_host_arithmetic() {

@@ -1,19 +1,19 @@
 //! anerf patch: element-wise loops over large buffers split into chunks for rayon's threads.
 //!
 //! Upstream runs unary, scalar and non-SIMD binary element-wise ops on the calling thread, and its SIMD
-//! add/sub/mul/div only fan out at 4 Mi elements. A training step of a small MLP is dominated by such ops
-//! on `[65536, 64]` tensors, so one of two cores idled through them. Every helper here runs the same
+//! add/sub/mul/div only fan out at 4 Mi elements (lowered here too). A training step of a small MLP is
+//! dominated by such ops on `[65536, 64]` tensors, so one of two cores idled through them. Every helper here runs the same
 //! per-element closure as the sequential loop it replaces, over disjoint chunks, so results are identical.
 
 use alloc::vec::Vec;
 
 /// Elements per task: large enough that dispatch costs nothing measurable, small enough to balance.
 #[cfg(feature = "rayon")]
-const CHUNK: usize = 1 << 15;
+const CHUNK: usize = 1 << 14;
 
 /// Buffers shorter than this stay on the calling thread.
 #[cfg(feature = "rayon")]
-const MIN_PARALLEL: usize = 1 << 17;
+const MIN_PARALLEL: usize = 1 << 16;
 
 /// Whether a loop over `len` elements is split across threads.
 #[inline]
