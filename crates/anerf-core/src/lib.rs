@@ -11,6 +11,7 @@ pub mod alloc;
 pub mod body;
 pub mod device;
 pub mod error;
+mod fastmath;
 mod flex;
 pub mod fused;
 pub mod geometry;

@@ -5,6 +5,7 @@
 use glam::Vec3;
 use rayon::prelude::*;
 
+use crate::fastmath;
 use crate::geometry::skinning::DET_GUARD;
 use crate::trilinear::{cell_position_gradient, corner_weights};
 
@@ -145,7 +146,9 @@ pub fn inverse_skinning_grads(
         });
 }
 
-/// `w = softmax(log(w^s + ε) + F)` per row (`[N, K]` each) into `out`: the log-softmax blend parameterisation.
+/// `w = softmax(log(w^s + ε) + F)` per row (`[N, K]` each) into `out`: the log-softmax blend parameterisation,
+/// computed without the logarithm as `(w^s + ε) · e^(F − max F)`, normalised, with the vectorising
+/// [`fastmath::exp`]. The row's largest `F` gives a term of at least `ε`, so the sum is positive.
 pub fn prior_softmax(prior: &[f32], residual: &[f32], k: usize, out: &mut [f32]) {
     out.par_chunks_mut(k * BLOCK)
         .zip(prior.par_chunks(k * BLOCK))
@@ -156,16 +159,13 @@ pub fn prior_softmax(prior: &[f32], residual: &[f32], k: usize, out: &mut [f32])
                 .zip(prior.chunks_exact(k))
                 .zip(residual.chunks_exact(k))
             {
+                let max = f.iter().copied().fold(f32::NEG_INFINITY, f32::max);
+                // Two loops: the first vectorises, the sum (an ordered float reduction) would stop it.
                 for ((o, p), f) in o.iter_mut().zip(p).zip(f) {
-                    *o = (p + PRIOR_EPSILON).ln() + f;
+                    *o = (p + PRIOR_EPSILON) * fastmath::exp(f - max);
                 }
-                let max = o.iter().copied().fold(f32::NEG_INFINITY, f32::max);
-                let mut sum = 0.0;
-                for o in o.iter_mut() {
-                    *o = (*o - max).exp();
-                    sum += *o;
-                }
-                o.iter_mut().for_each(|o| *o /= sum);
+                let scale = 1.0 / o.iter().sum::<f32>();
+                o.iter_mut().for_each(|o| *o *= scale);
             }
         });
 }
