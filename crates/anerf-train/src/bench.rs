@@ -43,7 +43,8 @@ pub struct BenchArgs {
     /// Points per training step.
     #[arg(long, default_value_t = 65_536)]
     pub points: usize,
-    /// Timed training steps per preset, after one untimed warm-up step (0 skips the step benchmark).
+    /// Timed training steps per preset, after one untimed warm-up step (two rounds with `--interleave`; 0
+    /// skips the step benchmark).
     #[arg(long, default_value_t = 3)]
     pub steps: usize,
     /// Side in pixels of the square render of the demo subject (0 skips the render).
@@ -455,8 +456,13 @@ pub fn time_steps(
     (0..steps).map(|_| runner.step()).collect()
 }
 
-/// [`time_steps`] of several configurations in rounds: a warm-up step of each, then per round one timed step
-/// of each in turn. Returns each configuration's step times.
+/// Untimed rounds before [`time_steps_interleaved`] times any: with one, the first timed step of every
+/// configuration but the last, run right after the others' first steps, was the slowest of its run (the
+/// `fast` step by 15–20 % after the `paper` warm-up, in every run).
+const WARM_UP_ROUNDS: usize = 2;
+
+/// [`time_steps`] of several configurations in rounds: [`WARM_UP_ROUNDS`] untimed rounds, then per round one
+/// timed step of each in turn. Returns each configuration's step times.
 pub fn time_steps_interleaved(
     configs: &[ModelConfig],
     points: usize,
@@ -467,9 +473,11 @@ pub fn time_steps_interleaved(
         .iter()
         .map(|c| StepRunner::new(c, points, device))
         .collect();
-    runners.iter_mut().for_each(|r| {
-        r.step();
-    });
+    for _ in 0..WARM_UP_ROUNDS {
+        runners.iter_mut().for_each(|r| {
+            r.step();
+        });
+    }
     let mut times = vec![Vec::with_capacity(steps); configs.len()];
     for _ in 0..steps {
         for (runner, times) in runners.iter_mut().zip(&mut times) {
