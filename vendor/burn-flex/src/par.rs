@@ -2,8 +2,9 @@
 //!
 //! Upstream runs unary, scalar and non-SIMD binary element-wise ops on the calling thread, and its SIMD
 //! add/sub/mul/div only fan out at 4 Mi elements (lowered here too). A training step of a small MLP is
-//! dominated by such ops on `[65536, 64]` tensors, so one of two cores idled through them. Every helper here runs the same
-//! per-element closure as the sequential loop it replaces, over disjoint chunks, so results are identical.
+//! dominated by such ops on `[65536, 64]` tensors, so one of two cores idled through them. Every helper here
+//! runs the same per-element closure as the sequential loop it replaces, over disjoint chunks, so results
+//! are identical.
 
 use alloc::vec::Vec;
 
@@ -16,15 +17,10 @@ const CHUNK: usize = 1 << 14;
 const MIN_PARALLEL: usize = 1 << 16;
 
 /// Whether a loop over `len` elements is split across threads.
+#[cfg(feature = "rayon")]
 #[inline]
 fn parallel(len: usize) -> bool {
-    #[cfg(feature = "rayon")]
-    return len >= MIN_PARALLEL;
-    #[cfg(not(feature = "rayon"))]
-    {
-        let _ = len;
-        false
-    }
+    len >= MIN_PARALLEL
 }
 
 /// `x = op(x)` for every element of `dst`.
