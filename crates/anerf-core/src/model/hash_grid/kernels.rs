@@ -4,8 +4,8 @@
 //!
 //! The kernels walk points in blocks of [`LANES`]: a block's corners at one level (cells, rows, trilinear
 //! weights) are computed axis by axis in lane arrays, which the compiler vectorises, and only the table
-//! reads and writes go point by point (the encoding of 65,536 points on the `fast` preset's 16-level grid
-//! went from 17.4 to 13 ms on 2 cores).
+//! reads and writes go point by point. `cargo bench -p anerf-core --bench hash_grid_kernels` times them
+//! (figures in docs/PERFORMANCE.md).
 //!
 //! Shapes: points `[N, 3]` (metres), table `[L·T, F]`, encodings and their gradients `[N, L·F]`, all
 //! row-major.

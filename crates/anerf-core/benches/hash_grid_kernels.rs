@@ -1,0 +1,91 @@
+//! The hash-grid CPU kernels alone, on the `fast` preset's canonical-NeRF grid: `cargo bench -p anerf-core
+//! --bench hash_grid_kernels [-- POINTS]`. Prints the median and range of each kernel's wall time over
+//! repeated calls on 65,536 (or `POINTS`) points drawn uniformly in a 1 m cube around the origin (metres), the
+//! `anerf bench` step workload's points, with a random table and output gradient.
+
+use std::time::Instant;
+
+use anerf_core::model::config::{ModelPreset, PointEncoding};
+use anerf_core::model::hash_grid::kernels;
+
+/// Timed calls per kernel, after one untimed call.
+const REPEATS: usize = 15;
+
+fn main() {
+    let n: usize = std::env::args()
+        .skip(1)
+        .find(|a| !a.starts_with('-'))
+        .map(|a| a.parse().expect("POINTS: a number of points"))
+        .unwrap_or(65_536);
+    let PointEncoding::HashGrid { nerf, .. } = ModelPreset::Fast.config().encoding else {
+        panic!("the fast preset encodes with hash grids");
+    };
+    let spec = nerf.spec();
+    // xorshift64: a fixed, dependency-free stream of uniform floats in [0, 1).
+    let mut state = 0x9e37_79b9_7f4a_7c15u64;
+    let mut uniform = move || {
+        state ^= state << 13;
+        state ^= state >> 7;
+        state ^= state << 17;
+        (state >> 40) as f32 / (1u64 << 24) as f32
+    };
+    let points: Vec<f32> = (0..3 * n).map(|_| uniform() - 0.5).collect();
+    let table: Vec<f32> = (0..spec.table_rows() * spec.features)
+        .map(|_| (uniform() - 0.5) * 2e-2)
+        .collect();
+    let grad: Vec<f32> = (0..n * spec.output_dim())
+        .map(|_| uniform() - 0.5)
+        .collect();
+    let (mut out, mut grad_table, mut grad_points) = (
+        vec![0.0; n * spec.output_dim()],
+        vec![0.0; table.len()],
+        vec![0.0; 3 * n],
+    );
+    println!(
+        "{n} points, {} levels of 2^{} × {} entries, {} threads",
+        spec.levels(),
+        spec.table_size.trailing_zeros(),
+        spec.features,
+        rayon::current_num_threads()
+    );
+    report("encode", || {
+        kernels::encode(&points, &table, &spec, &mut out)
+    });
+    report("table gradient", || {
+        grad_table.fill(0.0);
+        kernels::table_grad(&points, &grad, &spec, &mut grad_table)
+    });
+    report("point gradient", || {
+        kernels::points_grad(&points, &table, &grad, &spec, &mut grad_points)
+    });
+    report("both gradients", || {
+        grad_table.fill(0.0);
+        kernels::grads(
+            &points,
+            &table,
+            &grad,
+            &spec,
+            &mut grad_table,
+            &mut grad_points,
+        )
+    });
+}
+
+/// Times `REPEATS` calls of `kernel` after one untimed call and prints the median and range in ms.
+fn report(name: &str, mut kernel: impl FnMut()) {
+    kernel();
+    let mut ms: Vec<f64> = (0..REPEATS)
+        .map(|_| {
+            let started = Instant::now();
+            kernel();
+            started.elapsed().as_secs_f64() * 1e3
+        })
+        .collect();
+    ms.sort_by(f64::total_cmp);
+    println!(
+        "{name:>16}: median {:6.2} ms  (min {:.2}, max {:.2})",
+        ms[REPEATS / 2],
+        ms[0],
+        ms[REPEATS - 1]
+    );
+}
