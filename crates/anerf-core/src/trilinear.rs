@@ -1,6 +1,7 @@
-//! Trilinear interpolation weights, shared by the CPU kernels that interpolate on grids
-//! ([`crate::model::hash_grid::kernels`], [`crate::fused::kernels`]). Corner `c` of a cell has bit `a` set
-//! when it lies on the high side along axis `a`; `frac` is the point's position in the cell, `[0, 1]` per axis.
+//! Trilinear interpolation weights of one point, for the fused warp kernels' volume lookup
+//! ([`crate::fused::kernels`]; the hash-grid kernels compute the same weights for blocks of points, in lane
+//! arrays). Corner `c` of a cell has bit `a` set when it lies on the high side along axis `a`; `frac` is the
+//! point's position in the cell, `[0, 1]` per axis.
 
 /// The eight corners' weights `Π_a (frac_a or 1 − frac_a)`.
 #[inline(always)]

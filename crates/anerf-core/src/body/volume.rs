@@ -304,7 +304,7 @@ impl VolumeTensor {
     }
 
     /// Whether a point of the volume's frame lies nearer to the body than `threshold` metres: the same answer as
-    /// `distance_at(p) < threshold`, mostly without interpolating ([`HostVolume`]).
+    /// `distance_at(p) < threshold`, mostly without interpolating (`HostVolume`).
     pub fn is_near(&self, p: Vec3, threshold: f32) -> bool {
         self.host.is_near(p, threshold)
     }

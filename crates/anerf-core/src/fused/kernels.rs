@@ -148,7 +148,8 @@ pub fn inverse_skinning_grads(
 
 /// `w = softmax(log(w^s + ε) + F)` per row (`[N, K]` each) into `out`: the log-softmax blend parameterisation,
 /// computed without the logarithm as `(w^s + ε) · e^(F − max F)`, normalised, with the vectorising
-/// [`fastmath::exp`]. The row's largest `F` gives a term of at least `ε`, so the sum is positive.
+/// `fastmath::exp` (crate-private). The row's largest `F` gives a term of at least `ε`, so the sum is
+/// positive.
 pub fn prior_softmax(prior: &[f32], residual: &[f32], k: usize, out: &mut [f32]) {
     out.par_chunks_mut(k * BLOCK)
         .zip(prior.par_chunks(k * BLOCK))

@@ -2,7 +2,7 @@
 //! forward gather, and the gradients with respect to the table (a scatter, partitioned by level so each
 //! task owns its rows) and to the points.
 //!
-//! The kernels walk points in blocks of [`LANES`]: a block's corners at one level (cells, rows, trilinear
+//! The kernels walk points in blocks of `LANES`: a block's corners at one level (cells, rows, trilinear
 //! weights) are computed axis by axis in lane arrays, which the compiler vectorises, and only the table
 //! reads and writes go point by point. `cargo bench -p anerf-core --bench hash_grid_kernels` times them
 //! (figures in docs/PERFORMANCE.md).
@@ -40,7 +40,8 @@ struct Level {
 
 /// Up to [`LANES`] points' positions in the grid's unit cube, clamped, axis-major, and per axis whether each
 /// lies strictly inside the grid (outside, the position is clamped and its derivative is zero). The same at
-/// every level, so the kernels compute it once per point. Lanes past `len` hold the origin.
+/// every level, so the kernels compute it once per point. Lanes past `len` hold zeros (the grid's least
+/// corner) and are never read or written back.
 #[derive(Debug, Clone)]
 struct UnitBlock {
     u: [[f32; LANES]; 3],
