@@ -1,23 +1,56 @@
 #!/usr/bin/env python3
-"""Collects `summary.json` files of `anerf eval` into one Markdown table shaped like the paper's.
+"""Collects `anerf eval` summaries into one Markdown table shaped like the paper's.
 
 Usage: collect.py --title "Frames" label=path/to/summary.json [label=... ...]
+   or: collect.py --title "Variant" label=path/to/run [label=... ...]
+A run folder gives one row with every split it was evaluated on (training-view, novel-view, novel-pose) side
+by side, and the gap from the training views to the held-out views.
 """
 import argparse
 import json
+import os
+
+SPLITS = ["training-view", "novel-view", "novel-pose"]
+
+
+def summary(path):
+    with open(path) as f:
+        return json.load(f)
+
+
+def run_row(label, run):
+    cells = [label]
+    found = {}
+    for split in SPLITS:
+        path = os.path.join(run, "eval", split, "summary.json")
+        if os.path.isfile(path):
+            found[split] = summary(path)
+            cells += [f"{float(found[split]['psnr']):.2f}", f"{float(found[split]['ssim']):.3f}"]
+        else:
+            cells += ["–", "–"]
+    if "training-view" in found and "novel-view" in found:
+        gap = float(found["training-view"]["psnr"]) - float(found["novel-view"]["psnr"])
+        cells.append(f"{gap:.2f}")
+    else:
+        cells.append("–")
+    return "| " + " | ".join(cells) + " |"
 
 
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--title", required=True)
-    parser.add_argument("rows", nargs="+", help="label=summary.json")
+    parser.add_argument("rows", nargs="+", help="label=summary.json or label=run folder")
     args = parser.parse_args()
-    lines = [f"| {args.title} | PSNR | SSIM | images |", "|---|---:|---:|---:|"]
-    for row in args.rows:
-        label, path = row.split("=", 1)
-        with open(path) as f:
-            s = json.load(f)
-        lines.append(f"| {label} | {float(s['psnr']):.2f} | {float(s['ssim']):.3f} | {s['images']} |")
+    rows = [row.split("=", 1) for row in args.rows]
+    if all(os.path.isdir(path) for _, path in rows):
+        head = " | ".join(f"{s} PSNR | {s} SSIM" for s in SPLITS)
+        lines = [f"| {args.title} | {head} | gap (dB) |", "|---" + "|---:" * 7 + "|"]
+        lines += [run_row(label, path) for label, path in rows]
+    else:
+        lines = [f"| {args.title} | PSNR | SSIM | images |", "|---|---:|---:|---:|"]
+        for label, path in rows:
+            s = summary(path)
+            lines.append(f"| {label} | {float(s['psnr']):.2f} | {float(s['ssim']):.3f} | {s['images']} |")
     print("\n".join(lines))
 
 

@@ -58,25 +58,33 @@ frame_interval = 2
 chunk = 4096
 TOML
 else
-    [ -n "$CONFIG" ] || CONFIG="$ROOT/configs/h36m/S9.toml"
+    [ -n "$CONFIG" ] || CONFIG="${DEFAULT_CONFIG:-$ROOT/configs/h36m/S9.toml}"
     OUT="${OUT:-$ROOT/runs/ablation/$(basename "$0" .sh)}"
     mkdir -p "$OUT"
 fi
 
 ROWS=()
 
-# run_variant <label> <split: novel-view|novel-pose> [--set key=value ...]: trains (both stages for
-# novel-pose) and evaluates one variant into $OUT/<label>, and remembers its summary for the table.
+# run_variant <label> <split: novel-view|novel-pose|all> [--set key=value ...]: trains (both stages for
+# novel-pose and all) and evaluates one variant into $OUT/<label>, and remembers its summary for the table
+# (`all`: the training-view, novel-view and novel-pose splits, side by side).
 run_variant() {
     local label="$1" split="$2"
     shift 2
     local run="$OUT/$label"
     "$ANERF" train "$CONFIG" --quiet --out "$run" "$@"
-    if [ "$split" = novel-pose ]; then
+    if [ "$split" != novel-view ]; then
         "$ANERF" animate "$run" --quiet
     fi
-    "$ANERF" eval "$run" --split "$split" --quiet >/dev/null
-    ROWS+=("$label=$run/eval/$split/summary.json")
+    if [ "$split" = all ]; then
+        for s in training-view novel-view novel-pose; do
+            "$ANERF" eval "$run" --split "$s" --quiet >/dev/null
+        done
+        ROWS+=("$label=$run")
+    else
+        "$ANERF" eval "$run" --split "$split" --quiet >/dev/null
+        ROWS+=("$label=$run/eval/$split/summary.json")
+    fi
 }
 
 # write_table <title>: the Markdown table of every variant run so far, printed and saved as $OUT/table.md.

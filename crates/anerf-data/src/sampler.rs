@@ -178,7 +178,9 @@ impl RaySampler {
                     .camera
                     .pixel_ray(u as f32, v as f32, self.options.convention);
                 if let Some(hit) = hit_box.intersect(&ray) {
-                    push_ray(&mut out, &ray, hit.near, hit.far, gt(i as usize), [u, v]);
+                    let i = i as usize;
+                    push_ray(&mut out, &ray, hit.near, hit.far, gt(i), [u, v]);
+                    out.foreground.push(bound[i] && classes[i] == BODY);
                 }
             }
         }

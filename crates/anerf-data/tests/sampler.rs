@@ -120,6 +120,7 @@ fn training_rays_follow_the_reference_scheme() {
         assert!(rays.near[k] < rays.far[k]);
         let fg = mask.get_pixel(u, v)[0] != 0;
         on_body += fg as usize;
+        assert_eq!(rays.foreground[k], fg, "foreground flag of {u},{v}");
         let expect = if fg { img.get_pixel(u, v).0 } else { [0.0; 3] };
         assert_eq!(rays.colors[k], expect, "target colour of {u},{v}");
         let ray = cam.pixel_ray(u as f32, v as f32, options.convention);

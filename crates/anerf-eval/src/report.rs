@@ -25,6 +25,9 @@ use crate::raster::{PixelMask, RgbImageF32};
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
 #[serde(rename_all = "kebab-case")]
 pub enum EvalSplit {
+    /// Training views of training frames: what the model was fitted to, for the gap to the held-out
+    /// splits.
+    TrainingView,
     /// Test views of training frames.
     NovelView,
     /// Test views of held-out frames (novel poses).
@@ -32,8 +35,15 @@ pub enum EvalSplit {
 }
 
 impl EvalSplit {
+    pub const ALL: [EvalSplit; 3] = [
+        EvalSplit::TrainingView,
+        EvalSplit::NovelView,
+        EvalSplit::NovelPose,
+    ];
+
     pub fn name(self) -> &'static str {
         match self {
+            EvalSplit::TrainingView => "training-view",
             EvalSplit::NovelView => "novel-view",
             EvalSplit::NovelPose => "novel-pose",
         }
@@ -50,10 +60,12 @@ impl std::str::FromStr for EvalSplit {
     type Err = String;
 
     fn from_str(s: &str) -> Result<Self, Self::Err> {
-        [EvalSplit::NovelView, EvalSplit::NovelPose]
+        EvalSplit::ALL
             .into_iter()
             .find(|split| split.name() == s)
-            .ok_or_else(|| format!("unknown split {s:?}; expected novel-view or novel-pose"))
+            .ok_or_else(|| {
+                format!("unknown split {s:?}; expected training-view, novel-view or novel-pose")
+            })
     }
 }
 
@@ -408,7 +420,7 @@ mod tests {
 
     #[test]
     fn split_names_parse_back() {
-        for split in [EvalSplit::NovelView, EvalSplit::NovelPose] {
+        for split in EvalSplit::ALL {
             assert_eq!(split.name().parse::<EvalSplit>(), Ok(split));
         }
         assert!("novel_view".parse::<EvalSplit>().is_err());

@@ -384,6 +384,7 @@ impl StepWorkload {
             observed: shaded.weights.clone(),
             canonical: model.canonical_weights(shaded.canonical_points.clone(), &self.canonical),
             mask: consistency_mask(shaded.density.clone()),
+            residual: shaded.residual.clone(),
         };
         color_mse(shaded.rgb, self.target.clone())
             + terms.loss(model.config().consistency)
@@ -547,7 +548,7 @@ fn time_render(args: &BenchArgs, preset: ModelPreset, device: &Device) -> Result
 /// synthesised into `subject` when it is missing, its cache goes beside it.
 fn demo_frame_config(subject: &Path, preset: ModelPreset) -> Result<config::ExperimentConfig> {
     if !subject.join("annots.npy").is_file() {
-        crate::commands::synth(subject, "demo", None)?;
+        crate::commands::synth(subject, anerf_data::synthetic::SynthPreset::Demo, None)?;
     }
     let cache = subject
         .parent()

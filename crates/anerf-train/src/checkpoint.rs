@@ -32,6 +32,9 @@ pub struct TrainerState {
     pub sampler: Option<RaySampler>,
     /// The trainer's own random stream (jitter, frame choice, stage-2 points).
     pub rng: ChaCha8Rng,
+    /// The stage's early stop on a loss plateau (absent in checkpoints written before it existed).
+    #[serde(default)]
+    pub plateau: crate::schedule::Plateau,
 }
 
 impl TrainerState {

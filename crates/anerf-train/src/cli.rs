@@ -80,10 +80,9 @@ pub struct TrainArgs {
     /// Novel-pose frames start:end[:step] (default: the frames after the training frames).
     #[arg(long)]
     pub novel_pose_frames: Option<String>,
-    /// Model preset (paper, cpu, fast, tiny).
-    #[arg(long)]
+    #[arg(long, long_help = crate::config::preset_help(), help = "Model preset (paper, cpu, fast, tiny); --help lists each one's schedule")]
     pub preset: Option<ModelPreset>,
-    /// Training iterations.
+    /// Training iterations (default: the preset's schedule).
     #[arg(long)]
     pub iterations: Option<usize>,
     /// Run folder (default runs/<name>).
@@ -116,7 +115,8 @@ pub struct RunArgs {
 #[derive(Debug, Args)]
 pub struct EvalArgs {
     pub run: PathBuf,
-    /// novel-view (training frames, test views) or novel-pose (novel-pose frames, test views).
+    /// novel-view (training frames, test views), novel-pose (novel-pose frames, test views) or
+    /// training-view (training frames, training views: the fit, for the gap to the held-out splits).
     #[arg(long, default_value = "novel-view")]
     pub split: anerf_eval::report::EvalSplit,
     #[command(flatten)]
@@ -180,9 +180,11 @@ pub struct SynthArgs {
     /// Output folder (must not exist).
     #[arg(long)]
     pub out: PathBuf,
-    /// tiny (4 views, 10 frames, 64 px) or demo (8 views, 90 frames, 256 px).
+    /// tiny (4 views, 10 frames, 64 px), demo (8 views, 90 frames, 256 px), realistic (8 views at three
+    /// heights, 150 frames, 512 px, studio lights with shadows and highlights, clothing over the given
+    /// body) or realistic-exact (the same without clothing: the given body is the rendered one).
     #[arg(long, default_value = "demo")]
-    pub preset: String,
+    pub preset: anerf_data::synthetic::SynthPreset,
     #[arg(long)]
     pub seed: Option<u64>,
 }

@@ -6,7 +6,7 @@ use std::sync::atomic::AtomicBool;
 use anerf_core::device::probe::checked_device;
 use anerf_core::model::{AnimatableNerf, ModelPreset};
 use anerf_core::{DeviceChoice, FrameId};
-use anerf_data::synthetic::{write_subject, SyntheticSpec};
+use anerf_data::synthetic::{write_subject, SynthPreset};
 use anerf_data::visual_hull::VisualHull;
 use anerf_data::DatasetKind;
 use anerf_eval::report::{markdown_table, EvalRecorder, EvalSplit, Summary};
@@ -98,12 +98,8 @@ fn train_flag_overrides(args: &crate::cli::TrainArgs) -> Result<Vec<String>> {
 }
 
 /// `anerf synth`.
-pub fn synth(out: &Path, preset: &str, seed: Option<u64>) -> Result<()> {
-    let mut spec = match preset {
-        "tiny" => SyntheticSpec::tiny(),
-        "demo" => SyntheticSpec::demo(),
-        other => bail!("unknown synthetic preset '{other}': expected tiny or demo"),
-    };
+pub fn synth(out: &Path, preset: SynthPreset, seed: Option<u64>) -> Result<()> {
+    let mut spec = preset.spec();
     if let Some(s) = seed {
         spec.seed = s;
     }
@@ -315,7 +311,7 @@ pub fn eval(run_path: &Path, split: EvalSplit, common: &Common) -> Result<Summar
     let model = load_trained(&run, &config, &device)?;
     let mut exp = Experiment::open(config, device, !common.quiet)?;
     let frames: Vec<FrameId> = match split {
-        EvalSplit::NovelView => exp.train_frames.clone(),
+        EvalSplit::TrainingView | EvalSplit::NovelView => exp.train_frames.clone(),
         EvalSplit::NovelPose => {
             if model.novel_blend.is_none() {
                 bail!("{} has no stage-2 checkpoint; run `anerf animate {}` before a novel-pose evaluation", run.root.display(), run.root.display());
@@ -327,7 +323,10 @@ pub fn eval(run_path: &Path, split: EvalSplit, common: &Common) -> Result<Summar
         .into_iter()
         .step_by(exp.config.eval.frame_interval)
         .collect();
-    let views = exp.test_views.clone();
+    let views = match split {
+        EvalSplit::TrainingView => exp.train_views.clone(),
+        EvalSplit::NovelView | EvalSplit::NovelPose => exp.test_views.clone(),
+    };
     if frames.is_empty() || views.is_empty() {
         bail!(
             "the {split} split of {} has no frames or no test views",
@@ -634,7 +633,7 @@ pub fn demo(
         open_device(choice, common)?;
     }
     if !subject.join("annots.npy").is_file() {
-        synth(&subject, "demo", None)?;
+        synth(&subject, SynthPreset::Demo, None)?;
     }
     let mut table = config::defaults();
     config::merge(

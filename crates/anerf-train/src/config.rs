@@ -239,6 +239,25 @@ pub struct StageConfig {
     /// imprecise masks of real captures). Synthetic subjects have exact masks and turn it off.
     #[serde(default = "default_true")]
     pub skip_mask_edges: bool,
+    /// Stage 1: weight of the silhouette loss `mean((acc − m)²)`, the rendered opacity against the mask
+    /// (1 on body pixels, 0 elsewhere); 0 disables it (the paper fits colours alone).
+    #[serde(default)]
+    pub mask_weight: f32,
+    /// Weight of `mean(F²)`, the penalty on the blend-weight residual that keeps the neural weights at the
+    /// body model's where the data does not ask otherwise; 0 disables it.
+    #[serde(default)]
+    pub residual_weight: f32,
+    /// Stop early once the loss, averaged over each `log_every` window, has not fallen by
+    /// `plateau_tolerance` (relative) below its best for this many steps; 0 never stops early.
+    #[serde(default)]
+    pub plateau_steps: usize,
+    /// Relative improvement that counts as progress for `plateau_steps`.
+    #[serde(default = "default_plateau_tolerance")]
+    pub plateau_tolerance: f32,
+}
+
+fn default_plateau_tolerance() -> f32 {
+    0.01
 }
 
 fn default_true() -> bool {
@@ -292,7 +311,9 @@ pub fn load(path: &Path, overrides: &[String]) -> Result<ExperimentConfig, Confi
 /// Builds a config from an already merged table (defaults, presets, validation).
 pub fn from_table(mut table: Table) -> Result<ExperimentConfig, ConfigError> {
     table.remove("base");
-    expand_model_preset(&mut table)?;
+    if let Some(preset) = expand_model_preset(&mut table)? {
+        default_schedule(&mut table, preset_schedule(preset));
+    }
     default_learning_rates(&mut table);
     let config: ExperimentConfig = serde_path_to_error::deserialize(Value::Table(table))
         .map_err(|e| ConfigError::Invalid(format!("{}: {}", e.path(), e.inner().message())))?;
@@ -313,7 +334,6 @@ device = "flex"
 preset = "paper"
 
 [train]
-iterations = 200000
 batch = 1024
 schedule = "paper"
 grad_clip = 40.0
@@ -322,8 +342,6 @@ validate_every = 5000
 log_every = 100
 
 [animate]
-iterations = 10000
-batch = 65536
 schedule = "paper"
 grad_clip = 40.0
 checkpoint_every = 2000
@@ -418,9 +436,79 @@ pub fn apply_override(table: &mut Table, text: &str) -> Result<(), ConfigError> 
     Ok(())
 }
 
-/// Replaces `[model] preset = "…"` by the preset's full configuration with the other `[model]` keys on top.
-/// With `preset = "none"` (or none at all) the section must list every field, as a saved, resolved config does.
-fn expand_model_preset(table: &mut Table) -> Result<(), ConfigError> {
+/// The step counts and stage-2 batch a model preset trains with where no file, flag or override gives
+/// them.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct PresetSchedule {
+    /// `train.iterations`.
+    pub train_iterations: usize,
+    /// `animate.iterations`.
+    pub animate_iterations: usize,
+    /// `animate.batch` (points per set).
+    pub animate_batch: usize,
+}
+
+/// The schedule of each model preset.
+pub fn preset_schedule(preset: ModelPreset) -> PresetSchedule {
+    match preset {
+        // The paper's 200k steps and the authors' stage 2 (10k steps of 65,536 points); the CPU-sized
+        // frequency model keeps them (it converges no faster).
+        ModelPreset::Paper | ModelPreset::Cpu => PresetSchedule {
+            train_iterations: 200_000,
+            animate_iterations: 10_000,
+            animate_batch: 65_536,
+        },
+        // Hash grids: the realistic subject's held-out PSNR levels off by 5,000 steps, and stage 2's
+        // novel-pose PSNR by a few hundred steps of 16,384 points (docs/QUALITY.md).
+        ModelPreset::Fast => PresetSchedule {
+            train_iterations: 5_000,
+            animate_iterations: 1_000,
+            animate_batch: 16_384,
+        },
+        ModelPreset::Tiny => PresetSchedule {
+            train_iterations: 200,
+            animate_iterations: 50,
+            animate_batch: 4_096,
+        },
+    }
+}
+
+/// The `--preset` help of `anerf train`: each preset's schedule.
+pub fn preset_help() -> String {
+    let mut text = String::from(
+        "Model preset; without --iterations (or train.iterations in the config) each trains its own schedule:",
+    );
+    for p in ModelPreset::ALL {
+        let s = preset_schedule(p);
+        text.push_str(&format!(
+            "\n  {:<6} stage 1 {} iterations, stage 2 {} iterations of {} points",
+            p.name(),
+            s.train_iterations,
+            s.animate_iterations,
+            s.animate_batch
+        ));
+    }
+    text
+}
+
+/// Fills `train.iterations`, `animate.iterations` and `animate.batch` where no file or override gave them.
+fn default_schedule(table: &mut Table, schedule: PresetSchedule) {
+    let as_int = |n: usize| Value::Integer(n as i64);
+    for (stage, key, value) in [
+        ("train", "iterations", schedule.train_iterations),
+        ("animate", "iterations", schedule.animate_iterations),
+        ("animate", "batch", schedule.animate_batch),
+    ] {
+        if let Some(Value::Table(t)) = table.get_mut(stage) {
+            t.entry(key).or_insert(as_int(value));
+        }
+    }
+}
+
+/// Replaces `[model] preset = "…"` by the preset's full configuration with the other `[model]` keys on top,
+/// and returns the preset. With `preset = "none"` (or none at all) the section must list every field, as a
+/// saved, resolved config does.
+fn expand_model_preset(table: &mut Table) -> Result<Option<ModelPreset>, ConfigError> {
     let mut model = match table.remove("model") {
         Some(Value::Table(t)) => t,
         None => Table::new(),
@@ -442,12 +530,12 @@ fn expand_model_preset(table: &mut Table) -> Result<(), ConfigError> {
     };
     let Some(preset) = preset else {
         table.insert("model".into(), Value::Table(model));
-        return Ok(());
+        return Ok(None);
     };
     let mut full = Table::try_from(preset.config()).expect("model configs serialise to TOML");
     merge(&mut full, model);
     table.insert("model".into(), Value::Table(full));
-    Ok(())
+    Ok(Some(preset))
 }
 
 /// Fills `lr` and `lr_final` of `[train]` and `[animate]` where no file or override gave them, from the
@@ -532,6 +620,24 @@ pub fn validate(c: &ExperimentConfig) -> Result<(), ConfigError> {
             return bad(
                 &format!("{name}.grad_clip"),
                 format!("{} (expected ≥ 0; 0 disables)", s.grad_clip),
+            );
+        }
+        if !(s.mask_weight.is_finite() && s.mask_weight >= 0.0) {
+            return bad(
+                &format!("{name}.mask_weight"),
+                format!("{} (expected ≥ 0; 0 disables)", s.mask_weight),
+            );
+        }
+        if !(s.residual_weight.is_finite() && s.residual_weight >= 0.0) {
+            return bad(
+                &format!("{name}.residual_weight"),
+                format!("{} (expected ≥ 0; 0 disables)", s.residual_weight),
+            );
+        }
+        if !(s.plateau_tolerance.is_finite() && (0.0..1.0).contains(&s.plateau_tolerance)) {
+            return bad(
+                &format!("{name}.plateau_tolerance"),
+                format!("{} (expected 0 ≤ tolerance < 1)", s.plateau_tolerance),
             );
         }
         if s.log_every == 0 {
@@ -682,6 +788,48 @@ width = 48
             load(&p, &["nonsense".into()]),
             Err(ConfigError::BadOverride(_))
         ));
+    }
+
+    /// Without step counts in any file, each preset trains its own schedule; given ones are kept.
+    #[test]
+    fn presets_carry_their_schedules() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = write(dir.path(), "s.toml", SUBJECT);
+        let steps =
+            |c: &ExperimentConfig| (c.train.iterations, c.animate.iterations, c.animate.batch);
+        for preset in ModelPreset::ALL {
+            let c = load(&p, &[format!("model.preset={}", preset.name())]).unwrap();
+            let s = preset_schedule(preset);
+            assert_eq!(
+                steps(&c),
+                (s.train_iterations, s.animate_iterations, s.animate_batch)
+            );
+        }
+        assert_eq!(preset_schedule(ModelPreset::Fast).train_iterations, 5_000);
+        assert_eq!(
+            preset_schedule(ModelPreset::Paper).train_iterations,
+            200_000
+        );
+        let given = load(
+            &p,
+            &["model.preset=fast".into(), "train.iterations=7".into()],
+        )
+        .unwrap();
+        assert_eq!(steps(&given), (7, 1_000, 16_384));
+        let help = preset_help();
+        for preset in ModelPreset::ALL {
+            let s = preset_schedule(preset);
+            assert!(
+                help.contains(&format!(
+                    "{:<6} stage 1 {} iterations, stage 2 {} iterations of {} points",
+                    preset.name(),
+                    s.train_iterations,
+                    s.animate_iterations,
+                    s.animate_batch
+                )),
+                "{help}"
+            );
+        }
     }
 
     #[test]

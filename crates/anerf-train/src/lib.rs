@@ -9,6 +9,7 @@ pub mod config;
 pub mod experiment;
 pub mod mesh;
 pub mod poses;
+pub mod progress;
 pub mod render;
 pub mod run_dir;
 pub mod schedule;

@@ -30,7 +30,7 @@ fn main() -> ExitCode {
 
 fn run(cli: Cli) -> anyhow::Result<ExitCode> {
     match cli.command {
-        Command::Synth(a) => commands::synth(&a.out, &a.preset, a.seed)?,
+        Command::Synth(a) => commands::synth(&a.out, a.preset, a.seed)?,
         Command::Info(a) => {
             if !commands::info(&a.path)? {
                 return Ok(ExitCode::FAILURE);

@@ -1,4 +1,6 @@
-//! Learning-rate schedules.
+//! Learning-rate schedules and the early stop on a loss plateau.
+
+use serde::{Deserialize, Serialize};
 
 use crate::config::{LrSchedule, StageConfig};
 
@@ -15,9 +17,61 @@ pub fn learning_rate(stage: &StageConfig, step: usize) -> f64 {
     }
 }
 
+/// Early stopping: the best windowed loss so far and when it was reached. Saved with each checkpoint, so a
+/// resumed stage stops where an uninterrupted one would.
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+pub struct Plateau {
+    best: Option<f32>,
+    best_step: usize,
+    /// True once the stage stopped on the plateau.
+    pub reached: bool,
+}
+
+impl Plateau {
+    /// Records the mean loss of the window ending at `step`. Returns (and remembers) true once the loss
+    /// has not fallen below `(1 − tolerance) · best` for `patience` steps; `patience = 0` never stops.
+    pub fn update(&mut self, step: usize, loss: f32, patience: usize, tolerance: f32) -> bool {
+        if patience == 0 || !loss.is_finite() {
+            return false;
+        }
+        match self.best {
+            Some(best) if loss >= best * (1.0 - tolerance) => {
+                if step - self.best_step >= patience {
+                    self.reached = true;
+                }
+            }
+            _ => {
+                self.best = Some(loss);
+                self.best_step = step;
+            }
+        }
+        self.reached
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_plateau_stops_after_its_patience_and_progress_resets_it() {
+        let mut p = Plateau::default();
+        // Falling by 10 % per window: never a plateau.
+        let mut loss = 1.0;
+        for step in (100..=1000).step_by(100) {
+            assert!(!p.update(step, loss, 300, 0.01), "step {step}");
+            loss *= 0.9;
+        }
+        // Then flat within the tolerance: stops 300 steps after the last real improvement.
+        let best = loss / 0.9;
+        assert!(!p.update(1100, best * 0.995, 300, 0.01));
+        assert!(!p.update(1200, best * 1.01, 300, 0.01));
+        assert!(p.update(1300, best * 0.999, 300, 0.01));
+        assert!(p.reached);
+        // Patience 0 disables the stop.
+        let mut off = Plateau::default();
+        assert!((1..100).all(|s| !off.update(s, 1.0, 0, 0.01)));
+    }
 
     fn stage(schedule: LrSchedule) -> StageConfig {
         StageConfig {
@@ -31,6 +85,10 @@ mod tests {
             validate_every: 1,
             log_every: 1,
             skip_mask_edges: true,
+            mask_weight: 0.0,
+            residual_weight: 0.0,
+            plateau_steps: 0,
+            plateau_tolerance: 0.01,
         }
     }
 

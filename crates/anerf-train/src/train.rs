@@ -17,7 +17,6 @@ use burn::grad_clipping::GradientClippingConfig;
 use burn::optim::{AdamConfig, GradientsParams, ModuleOptimizer};
 use burn::prelude::*;
 use glam::Vec3;
-use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use serde::Serialize;
@@ -25,9 +24,10 @@ use serde::Serialize;
 use crate::checkpoint::{Checkpoint, TrainerState};
 use crate::config::StageConfig;
 use crate::experiment::Experiment;
+use crate::progress::StageProgress;
 use crate::render::render_view;
 use crate::run_dir::{MetricsLog, RunDir};
-use crate::schedule::learning_rate;
+use crate::schedule::{learning_rate, Plateau};
 
 /// How a stage runs.
 #[derive(Debug, Clone, Copy)]
@@ -81,25 +81,6 @@ fn optimizer(stage: &StageConfig) -> ModuleOptimizer {
         .with_epsilon(1e-8)
         .with_grad_clipping(clip)
         .init()
-}
-
-fn progress_bar(total: usize, start: usize, visible: bool, stage: u8) -> ProgressBar {
-    let bar = ProgressBar::with_draw_target(
-        Some(total as u64),
-        if visible {
-            ProgressDrawTarget::stderr()
-        } else {
-            ProgressDrawTarget::hidden()
-        },
-    );
-    bar.set_style(
-        ProgressStyle::with_template(&format!(
-            "stage {stage} {{bar:30}} {{pos}}/{{len}} {{msg}} ETA {{eta}}"
-        ))
-        .expect("valid template"),
-    );
-    bar.set_position(start as u64);
-    bar
 }
 
 /// Running means of the logged quantities between two log lines.
@@ -207,6 +188,7 @@ pub fn train_stage1(
                     novel_frames: None,
                     sampler: Some(sampler),
                     rng: ChaCha8Rng::seed_from_u64(exp.config.seed ^ 0x5eed_0001),
+                    plateau: Plateau::default(),
                 };
                 (
                     AnimatableNerf::new(&model_cfg, exp.model_sizes(), &device),
@@ -216,14 +198,14 @@ pub fn train_stage1(
             }
         };
     let log = MetricsLog::open(run.metrics_log(), 1, options.resume.then_some(state.step))?;
-    let bar = progress_bar(cfg.iterations, state.step, options.progress, 1);
+    let bar = StageProgress::new("stage 1", state.step, cfg.iterations, options.progress);
     let started = Instant::now();
     let mut window = Window::default();
     let mut last_loss = f32::NAN;
     let samples = model_cfg.samples_per_ray;
     let mut interrupted = false;
     let first_step = state.step;
-    while state.step < cfg.iterations {
+    while state.step < cfg.iterations && !state.plateau.reached {
         if stop.load(Ordering::SeqCst)
             || options
                 .max_steps
@@ -253,10 +235,23 @@ pub fn train_stage1(
             out.rgb,
             rays.colors.clone().expect("training rays carry colours"),
         );
-        let blend = out.consistency.map(|c| c.loss(model_cfg.consistency));
+        let colour_loss = match (&rays.foreground, cfg.mask_weight > 0.0) {
+            (Some(mask), true) => {
+                mse.clone() + silhouette_loss(out.acc.clone(), mask.clone()) * cfg.mask_weight
+            }
+            _ => mse.clone(),
+        };
+        let blend = out.consistency.map(|c| {
+            let consistency = c.loss(model_cfg.consistency);
+            if cfg.residual_weight > 0.0 {
+                consistency + c.residual_penalty() * cfg.residual_weight
+            } else {
+                consistency
+            }
+        });
         let loss = match &blend {
-            Some(b) => mse.clone() + b.clone(),
-            None => mse.clone(),
+            Some(b) => colour_loss + b.clone(),
+            None => colour_loss,
         };
         let values = to_host(Tensor::cat(
             vec![
@@ -305,28 +300,51 @@ pub fn train_stage1(
                 nerf_fraction: Some(window.mean(window.occupied)),
                 validation_psnr,
             };
-            bar.set_message(format!(
-                "loss {:.4} psnr {:.2} {:.0} rays/s",
-                line.loss,
-                psnr_from_mse(mse),
-                line.items_per_second
-            ));
+            bar.report(
+                state.step,
+                &format!(
+                    "loss {:.5} psnr {:.2} dB {:.0} rays/s",
+                    line.loss,
+                    psnr_from_mse(mse),
+                    line.items_per_second
+                ),
+            );
             log.append(&line)?;
             window = Window::default();
+            state.plateau.update(
+                state.step,
+                line.loss,
+                cfg.plateau_steps,
+                cfg.plateau_tolerance,
+            );
         }
-        bar.set_position(state.step as u64);
+        bar.set_step(state.step);
         if cfg.checkpoint_every > 0 && state.step % cfg.checkpoint_every == 0 {
             Checkpoint::save(&run.checkpoints(), &state, &model, &optim)?;
         }
     }
     Checkpoint::save(&run.checkpoints(), &state, &model, &optim)?;
-    bar.finish_and_clear();
+    bar.finish(state.step, ending(interrupted, &state.plateau));
     Ok(StageOutcome {
         steps: state.step,
         loss: last_loss,
         interrupted,
         seconds: started.elapsed().as_secs_f64(),
     })
+}
+
+/// `mean((acc − m)²)`: the rendered opacity `[R]` against the rays' foreground mask `[R]` (1 on the body).
+pub fn silhouette_loss(acc: Tensor<1>, foreground: Tensor<1>) -> Tensor<1> {
+    (acc - foreground).powf_scalar(2.0).mean()
+}
+
+/// How a stage's loop ended, for its last progress line.
+fn ending(interrupted: bool, plateau: &Plateau) -> &'static str {
+    match (interrupted, plateau.reached) {
+        (true, _) => "interrupted",
+        (false, true) => "stopped on a loss plateau",
+        (false, false) => "finished",
+    }
 }
 
 fn check_sizes(state: &TrainerState, exp: &Experiment) -> Result<()> {
@@ -413,6 +431,7 @@ pub fn train_stage2(
                 novel_frames: Some(exp.novel_frames.len()),
                 sampler: None,
                 rng: ChaCha8Rng::seed_from_u64(exp.config.seed ^ 0x5eed_0002),
+                plateau: Plateau::default(),
                 ..stage1
             };
             (
@@ -437,13 +456,13 @@ pub fn train_stage2(
         });
     }
     let log = MetricsLog::open(run.metrics_log(), 2, options.resume.then_some(state.step))?;
-    let bar = progress_bar(cfg.iterations, state.step, options.progress, 2);
+    let bar = StageProgress::new("stage 2", state.step, cfg.iterations, options.progress);
     let started = Instant::now();
     let mut window = Window::default();
     let mut last_loss = f32::NAN;
     let mut interrupted = false;
     let first_step = state.step;
-    while state.step < cfg.iterations {
+    while state.step < cfg.iterations && !state.plateau.reached {
         if stop.load(Ordering::SeqCst)
             || options
                 .max_steps
@@ -458,8 +477,7 @@ pub fn train_stage2(
             inputs: exp.frame_inputs(frame)?,
             bounds: exp.frame_bounds(frame)?,
         };
-        let (loss, value) =
-            stage2_loss(&model, &mut state.rng, cfg.batch, &target, exp.canonical());
+        let (loss, value) = stage2_loss(&model, &mut state.rng, &cfg, &target, exp.canonical());
         check_finite(value, 2, state.step, run)?;
         let lr = learning_rate(&cfg, state.step);
         let grads = GradientsParams::from_grads(loss.backward(), &model);
@@ -481,20 +499,29 @@ pub fn train_stage2(
                 nerf_fraction: None,
                 validation_psnr: None,
             };
-            bar.set_message(format!(
-                "loss {:.5} {:.0} points/s",
-                line.loss, line.items_per_second
-            ));
+            bar.report(
+                state.step,
+                &format!(
+                    "loss {:.6} {:.0} points/s",
+                    line.loss, line.items_per_second
+                ),
+            );
             log.append(&line)?;
             window = Window::default();
+            state.plateau.update(
+                state.step,
+                line.loss,
+                cfg.plateau_steps,
+                cfg.plateau_tolerance,
+            );
         }
-        bar.set_position(state.step as u64);
+        bar.set_step(state.step);
         if cfg.checkpoint_every > 0 && state.step % cfg.checkpoint_every == 0 {
             Checkpoint::save(&run.checkpoints(), &state, &model, &optim)?;
         }
     }
     Checkpoint::save(&run.checkpoints(), &state, &model, &optim)?;
-    bar.finish_and_clear();
+    bar.finish(state.step, ending(interrupted, &state.plateau));
     Ok(StageOutcome {
         steps: state.step,
         loss: last_loss,
@@ -511,29 +538,34 @@ pub struct PoseTarget {
 }
 
 /// The stage-2 loss of `target` on `batch` points uniform in its world box (moved to pose space) and
-/// `batch` uniform in the canonical box; with its value on the host.
+/// `batch` uniform in the canonical box, plus `residual_weight` times the residual's penalty; with its
+/// value on the host.
 fn stage2_loss(
     model: &AnimatableNerf,
     rng: &mut ChaCha8Rng,
-    batch: usize,
+    cfg: &StageConfig,
     target: &PoseTarget,
     canonical: &CanonicalInputs,
 ) -> (Tensor<1>, f32) {
     let device = model.device();
     let global = target.inputs.global;
-    let pose: Vec<Vec3> = uniform_in_box(rng, target.bounds.min, target.bounds.max, batch)
+    let pose: Vec<Vec3> = uniform_in_box(rng, target.bounds.min, target.bounds.max, cfg.batch)
         .into_iter()
         .map(|p| global.world_to_pose(p))
         .collect();
-    let canonical_points = uniform_in_box(rng, canonical.bounds.min, canonical.bounds.max, batch);
-    let loss = model
-        .stage2_loss(
-            &target.inputs,
-            canonical,
-            points_tensor(&pose, &device),
-            points_tensor(&canonical_points, &device),
-        )
-        .total;
+    let canonical_points =
+        uniform_in_box(rng, canonical.bounds.min, canonical.bounds.max, cfg.batch);
+    let terms = model.stage2_loss(
+        &target.inputs,
+        canonical,
+        points_tensor(&pose, &device),
+        points_tensor(&canonical_points, &device),
+    );
+    let loss = if cfg.residual_weight > 0.0 {
+        terms.total + terms.residual * cfg.residual_weight
+    } else {
+        terms.total
+    };
     let value = to_host(loss.clone())[0];
     (loss, value)
 }
@@ -558,18 +590,38 @@ pub fn fit_pose_codes(
     device.seed(seed ^ 3);
     let mut rng = ChaCha8Rng::seed_from_u64(seed ^ 0x5eed_0003);
     let mut optim = optimizer(cfg);
-    let bar = progress_bar(cfg.iterations, 0, progress, 2);
+    let bar = StageProgress::new("pose codes", 0, cfg.iterations, progress);
     for step in 0..cfg.iterations {
         let j = rng.random_range(0..targets.len());
-        let (loss, value) = stage2_loss(&model, &mut rng, cfg.batch, &targets[j], canonical);
+        let (loss, value) = stage2_loss(&model, &mut rng, cfg, &targets[j], canonical);
         if !value.is_finite() {
             bail!("fitting the poses' blend-weight codes: the loss is {value} at step {step} (lower animate.lr)");
         }
         let grads = GradientsParams::from_grads(loss.backward(), &model);
         model = optim.step(learning_rate(cfg, step), model, grads);
-        bar.set_message(format!("fitting pose codes, loss {value:.5}"));
-        bar.inc(1);
+        bar.set_step(step + 1);
+        if (step + 1) % cfg.log_every == 0 {
+            bar.report(step + 1, &format!("loss {value:.6}"));
+        }
     }
-    bar.finish_and_clear();
+    bar.finish(cfg.iterations, "finished");
     Ok(model.no_grad())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use anerf_core::device::cpu_device;
+
+    #[test]
+    fn the_silhouette_loss_is_the_mean_squared_opacity_error() {
+        let device = cpu_device();
+        let acc = Tensor::<1>::from_floats([0.2, 0.9, 1.0, 0.0], &device);
+        let mask = Tensor::<1>::from_floats([0.0, 1.0, 1.0, 1.0], &device);
+        let got = to_host(silhouette_loss(acc, mask))[0];
+        assert!(
+            (got - (0.04 + 0.01 + 0.0 + 1.0) / 4.0).abs() < 1e-7,
+            "{got}"
+        );
+    }
 }

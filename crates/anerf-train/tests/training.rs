@@ -285,3 +285,63 @@ fn a_diverging_run_stops_with_a_clear_message_and_keeps_the_last_good_checkpoint
     let (_, state) = ck.load_model(&config.model, &cpu_device()).unwrap();
     assert!(state.step >= 1 && state.step < 20, "{}", state.step);
 }
+
+/// With standard error redirected (as under nohup or SLURM) a run prints a start line, a plain line per
+/// logged window with the step, loss, PSNR, throughput and ETA, and an end line, for both stages.
+#[test]
+fn a_redirected_run_prints_plain_progress_lines() {
+    let dir = tempfile::tempdir().unwrap();
+    let config = tiny(
+        dir.path(),
+        &[
+            "train.iterations=30",
+            "train.log_every=10",
+            "animate.log_every=2",
+        ],
+    );
+    let path = write_config(dir.path(), &config);
+    let run = dir.path().join("run");
+    // `output()` gives the child a pipe for standard error: not a terminal.
+    let train = anerf()
+        .args([
+            "train",
+            path.to_str().unwrap(),
+            "--out",
+            run.to_str().unwrap(),
+        ])
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&train.stderr);
+    assert!(train.status.success(), "{stderr}");
+    assert!(
+        stderr.contains("stage 1: starting at step 0 of 30"),
+        "{stderr}"
+    );
+    for step in [10, 20, 30] {
+        let line = stderr
+            .lines()
+            .find(|l| l.starts_with(&format!("stage 1 step {step}/30 ")))
+            .unwrap_or_else(|| panic!("no line for step {step}:\n{stderr}"));
+        for field in ["loss ", "psnr ", " rays/s", "elapsed ", "ETA "] {
+            assert!(line.contains(field), "{line}");
+        }
+    }
+    assert!(
+        stderr.contains("stage 1: finished at step 30 of 30 after "),
+        "{stderr}"
+    );
+    let animate = anerf()
+        .args(["animate", run.to_str().unwrap()])
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&animate.stderr);
+    assert!(animate.status.success(), "{stderr}");
+    assert!(
+        stderr.contains("stage 2: starting at step 0 of 4")
+            && stderr
+                .lines()
+                .any(|l| l.starts_with("stage 2 step 2/4 loss "))
+            && stderr.contains("stage 2: finished at step 4 of 4"),
+        "{stderr}"
+    );
+}

@@ -9,9 +9,9 @@ use rayon::prelude::*;
 use super::blend::BlendWeightField;
 use super::nerf::CanonicalNerf;
 use super::occupancy::OccupancyGrid;
-use super::{ConsistencyLoss, ModelConfig};
+use super::{ConsistencyLoss, ModelConfig, ViewDirection};
 use crate::body::VolumeTensor;
-use crate::geometry::skinning::BoneMatrices;
+use crate::geometry::skinning::{world_to_pose_directions, BoneMatrices};
 use crate::geometry::{Aabb, GlobalTransform};
 use crate::render::{blend_consistency, composite, stratified_depths, RayBatch};
 use crate::tensor::to_host;
@@ -83,9 +83,17 @@ pub struct ConsistencyTerms {
     pub canonical: Tensor<2>,
     /// `[M, 1]` 1 where the sample counts: raw density > 0 inside the canonical box, plus the densest sample.
     pub mask: Tensor<2>,
+    /// `[M', K]` the frame field's residual `F` at the samples (neural field only), for its penalty.
+    pub residual: Option<Tensor<2>>,
 }
 
 impl ConsistencyTerms {
+    /// `mean(F²)` of the residual (zero without the neural field): the penalty that keeps the learned
+    /// correction near zero, i.e. the weights near the body model's, where the images do not ask otherwise.
+    pub fn residual_penalty(&self) -> Tensor<1> {
+        residual_penalty(self.residual.clone(), &self.observed.device())
+    }
+
     /// The loss value of kind `kind`.
     pub fn loss(&self, kind: ConsistencyLoss) -> Tensor<1> {
         blend_consistency(
@@ -108,8 +116,21 @@ pub struct ShadedSamples {
     pub canonical_points: Tensor<2>,
     /// `[M, K]` observation-space blend weights.
     pub weights: Tensor<2>,
+    /// `[M', K]` the blend-weight residual `F` of the samples that reached the blend-weight field (with
+    /// an occupancy grid, more than the `M` shaded ones); `None` without the neural field.
+    pub residual: Option<Tensor<2>>,
     /// `[M, 1]` true inside the canonical box.
     pub inside: Tensor<2, Bool>,
+}
+
+/// Pose-space samples carried to canonical space.
+struct Warped {
+    /// `[M, K]` observation-space blend weights.
+    weights: Tensor<2>,
+    /// `[M, K]` their residual `F` (neural field only).
+    residual: Option<Tensor<2>>,
+    /// `[M, 3]` canonical positions (metres).
+    canonical_points: Tensor<2>,
 }
 
 /// Animatable NeRF: a canonical radiance field, one blend-weight field shared by the training frames and
@@ -223,11 +244,25 @@ impl AnimatableNerf {
 
     /// Frame blend weights `w_i` at pose-space points `[M, 3]` with their prior `[M, K]`.
     pub fn frame_weights(&self, points: Tensor<2>, prior: Tensor<2>, code: FrameCode) -> Tensor<2> {
+        self.frame_blend(points, prior, code).0
+    }
+
+    /// Frame blend weights `w_i` `[M, K]` and, with the neural field, its residual `F` `[M, K]`.
+    pub fn frame_blend(
+        &self,
+        points: Tensor<2>,
+        prior: Tensor<2>,
+        code: FrameCode,
+    ) -> (Tensor<2>, Option<Tensor<2>>) {
         let (field, row) = self.frame_field(code);
         if !self.config.neural_blend_weights {
-            return field.prior_only(prior);
+            return (field.prior_only(prior), None);
         }
-        field.forward(points, row, prior)
+        let residual = field.residual(points, row);
+        (
+            super::blend::combine(self.config.blend, residual.clone(), prior),
+            Some(residual),
+        )
     }
 
     /// Raw canonical density at canonical points `[M, 3]`, zero outside the canonical box.
@@ -246,31 +281,62 @@ impl AnimatableNerf {
         frame: &FrameInputs,
         canonical: &CanonicalInputs,
     ) -> ShadedSamples {
-        let (weights, canonical_points) = self.warp(points, prior, frame);
-        self.radiance(weights, canonical_points, dirs, frame, canonical)
+        let warped = self.warp(points.clone(), prior, frame);
+        let dirs = self.colour_directions(points, dirs, &warped, frame);
+        self.radiance(warped, dirs, frame, canonical)
     }
 
-    /// Observation weights `[M, K]` and canonical positions `[M, 3]` of pose-space samples `[M, 3]`.
-    fn warp(
+    /// Observation weights, their residual and canonical positions of pose-space samples `[M, 3]`.
+    fn warp(&self, points: Tensor<2>, prior: Tensor<2>, frame: &FrameInputs) -> Warped {
+        let (weights, residual) = self.frame_blend(points.clone(), prior, frame.code);
+        let canonical_points = frame.bones.inverse(points, weights.clone());
+        Warped {
+            weights,
+            residual,
+            canonical_points,
+        }
+    }
+
+    /// The view directions `[M, 3]` the colour head sees for world-space unit directions `dirs` of the
+    /// pose-space samples `points`, in the frame [`ModelConfig::view_direction`] names.
+    ///
+    /// Canonical: the inverse skinning map `x ↦ rot(M)⁻¹ (x − t(M))` is affine in `x` for fixed weights, so
+    /// `rot(M)⁻¹ d_pose = x_can − inverse(x − d_pose)`, normalised (`d_pose = R_hᵀ d`).
+    fn colour_directions(
         &self,
         points: Tensor<2>,
-        prior: Tensor<2>,
+        dirs: Tensor<2>,
+        warped: &Warped,
         frame: &FrameInputs,
-    ) -> (Tensor<2>, Tensor<2>) {
-        let weights = self.frame_weights(points.clone(), prior, frame.code);
-        let canonical_points = frame.bones.inverse(points, weights.clone());
-        (weights, canonical_points)
+    ) -> Tensor<2> {
+        match self.config.view_direction {
+            ViewDirection::World => dirs,
+            ViewDirection::None => dirs.zeros_like(),
+            ViewDirection::Canonical => {
+                let pose_dirs = world_to_pose_directions(dirs, &frame.global);
+                let weights = warped.weights.clone().detach();
+                let back = frame.bones.inverse(points - pose_dirs, weights);
+                let d = warped.canonical_points.clone().detach() - back;
+                let length = d
+                    .clone()
+                    .powf_scalar(2.0)
+                    .sum_dim(1)
+                    .sqrt()
+                    .clamp_min(1e-12);
+                d / length
+            }
+        }
     }
 
-    /// The canonical NeRF at warped samples.
+    /// The canonical NeRF at warped samples seen along colour-head directions `dirs` `[M, 3]`.
     fn radiance(
         &self,
-        weights: Tensor<2>,
-        canonical_points: Tensor<2>,
+        warped: Warped,
         dirs: Tensor<2>,
         frame: &FrameInputs,
         canonical: &CanonicalInputs,
     ) -> ShadedSamples {
+        let canonical_points = warped.canonical_points;
         let inside = inside_box(canonical_points.clone(), &canonical.bounds);
         let radiance = self
             .nerf
@@ -279,7 +345,8 @@ impl AnimatableNerf {
             density: radiance.density.mask_fill(inside.clone().bool_not(), 0.0),
             rgb: radiance.rgb,
             canonical_points,
-            weights,
+            weights: warped.weights,
+            residual: warped.residual,
             inside,
         }
     }
@@ -301,28 +368,27 @@ impl AnimatableNerf {
         let flat: Vec<f32> = points.iter().flat_map(|p| p.to_array()).collect();
         let points = Tensor::from_data(TensorData::new(flat, [m, 3]), &device);
         let dirs = Tensor::from_data(TensorData::new(directions, [m, 3]), &device);
-        let (weights, canonical_points) = self.warp(points, prior, frame);
+        let warped = self.warp(points.clone(), prior, frame);
         let Some(grid) = &self.occupancy else {
             let rows = (0..m as i64).collect();
-            return (
-                rows,
-                self.radiance(weights, canonical_points, dirs, frame, canonical),
-            );
+            let dirs = self.colour_directions(points, dirs, &warped, frame);
+            return (rows, self.radiance(warped, dirs, frame, canonical));
         };
-        let mut rows = grid.occupied_rows(&to_host(canonical_points.clone()));
+        let mut rows = grid.occupied_rows(&to_host(warped.canonical_points.clone()));
         if rows.is_empty() {
             rows.push(0);
         }
         let local =
             Tensor::<1, Int>::from_data(TensorData::new(rows.clone(), [rows.len()]), &device);
-        let shaded = self.radiance(
-            weights.select(0, local.clone()),
-            canonical_points.select(0, local.clone()),
-            dirs.select(0, local),
-            frame,
-            canonical,
-        );
-        (rows, shaded)
+        let select = |t: Tensor<2>| t.select(0, local.clone());
+        let kept = Warped {
+            weights: select(warped.weights),
+            // The residual's penalty covers every sample that reached the blend-weight field.
+            residual: warped.residual,
+            canonical_points: select(warped.canonical_points),
+        };
+        let dirs = self.colour_directions(select(points), select(dirs), &kept, frame);
+        (rows, self.radiance(kept, dirs, frame, canonical))
     }
 
     /// Renders `rays` of one frame. `jitter` (`[R, S]` uniform in `[0, 1)`) perturbs the depths when training;
@@ -372,6 +438,7 @@ impl AnimatableNerf {
             observed: shaded.weights.clone(),
             canonical: self.canonical_weights(shaded.canonical_points.clone(), canonical),
             mask: consistency_mask(shaded.density.clone()),
+            residual: shaded.residual.clone(),
         });
         let density = Tensor::<2>::zeros([n, 1], &device).select_assign(
             0,
@@ -481,6 +548,14 @@ pub fn surviving_indices(distance: &[f32], threshold: f32) -> Vec<i64> {
         }
     }
     keep
+}
+
+/// `mean(F²)` of a residual `[M, K]`; zero for none.
+pub fn residual_penalty(residual: Option<Tensor<2>>, device: &Device) -> Tensor<1> {
+    match residual {
+        Some(f) => f.powf_scalar(2.0).mean(),
+        None => Tensor::zeros([1], device),
+    }
 }
 
 /// `[M, 1]` bool: the point lies inside `bounds` (inclusive).

@@ -1,6 +1,7 @@
 //! The neural blend weight field: body-model prior weights corrected by an MLP conditioned on a per-frame
 //! latent code (paper §3.2, REFERENCE.md §3.1).
 
+use burn::module::Param;
 use burn::nn::{Embedding, EmbeddingConfig, Linear};
 use burn::prelude::*;
 use burn::tensor::activation::softmax;
@@ -8,7 +9,7 @@ use burn::tensor::activation::softmax;
 use super::encoding::{encode_points, point_input, PositionalEncoding};
 use super::hash_grid::HashGrid;
 use super::mlp::{torch_linear, SkipMlp, SkipMlpConfig};
-use super::{BlendParameterisation, ModelConfig, PointEncoding};
+use super::{BlendParameterisation, ModelConfig, PointEncoding, ResidualInit};
 
 /// `w(x) = combine(F_Δw(γ(x), ψ), w^s(x))` for one table of latent codes ψ.
 ///
@@ -51,7 +52,7 @@ impl BlendWeightField {
             grid,
             xyz: xyz_pe,
             trunk: trunk.init(device),
-            head: torch_linear(config.width, joints, device),
+            head: residual_head(config, joints, device),
             codes: EmbeddingConfig::new(codes.max(1), config.blend_code_dim).init(device),
             parameterisation: config.blend,
         }
@@ -84,6 +85,16 @@ impl BlendWeightField {
     pub fn num_codes(&self) -> usize {
         self.codes.weight.dims()[0]
     }
+}
+
+/// The output layer `F` of a field: zero (the field starts at the prior) or PyTorch's initialisation.
+fn residual_head(config: &ModelConfig, joints: usize, device: &Device) -> Linear {
+    let mut head = torch_linear(config.width, joints, device);
+    if config.residual_init == ResidualInit::Zero {
+        head.weight = Param::from_tensor(Tensor::zeros(head.weight.dims(), device));
+        head.bias = Some(Param::from_tensor(Tensor::zeros([joints], device)));
+    }
+    head
 }
 
 /// Combines an MLP output `F` with prior weights `w^s` (both `[N, K]`).

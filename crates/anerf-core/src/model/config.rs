@@ -27,6 +27,33 @@ pub enum ConsistencyLoss {
     L1,
 }
 
+/// The frame in which the colour head sees the view direction.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum ViewDirection {
+    /// The world-space ray direction (the paper and its ICCV code).
+    #[default]
+    World,
+    /// The ray direction carried into canonical space by the sample's inverse skinning rotation,
+    /// `rot(Σ w_k A_k)⁻¹ R_hᵀ d` (the authors' later code).
+    Canonical,
+    /// No view dependence: the head gets a constant direction, so colour depends on the point and the
+    /// frame's appearance code alone.
+    None,
+}
+
+/// How the blend-weight field's output layer starts.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum ResidualInit {
+    /// Zero weights and bias: the residual `F` starts at 0, so every field starts at the body model's
+    /// weights (stage 1's and stage 2's alike).
+    #[default]
+    Zero,
+    /// PyTorch's default initialisation of a linear layer (the authors' code).
+    Random,
+}
+
 /// How points enter the MLPs.
 #[derive(Debug, Clone, Copy, PartialEq, Default, Serialize, Deserialize)]
 #[serde(tag = "kind", rename_all = "snake_case")]
@@ -70,6 +97,12 @@ pub struct ModelConfig {
     /// "SMPL blend weights" ablation).
     #[serde(default = "default_true")]
     pub neural_blend_weights: bool,
+    /// How the blend-weight residual starts.
+    #[serde(default)]
+    pub residual_init: ResidualInit,
+    /// The frame of the colour head's view direction.
+    #[serde(default)]
+    pub view_direction: ViewDirection,
     /// Point encoding of the NeRF and blend-weight fields (absent: the paper's frequencies).
     #[serde(default)]
     pub encoding: PointEncoding,
@@ -131,6 +164,8 @@ impl ModelPreset {
             blend: BlendParameterisation::LogSoftmax,
             consistency: ConsistencyLoss::SmoothL1,
             neural_blend_weights: true,
+            residual_init: ResidualInit::Zero,
+            view_direction: ViewDirection::World,
             encoding: PointEncoding::Frequency,
             occupancy: None,
         };

@@ -16,7 +16,10 @@ pub use animatable::{
     RenderOutput, ShadedSamples,
 };
 pub use blend::BlendWeightField;
-pub use config::{BlendParameterisation, ConsistencyLoss, ModelConfig, ModelPreset, PointEncoding};
+pub use config::{
+    BlendParameterisation, ConsistencyLoss, ModelConfig, ModelPreset, PointEncoding, ResidualInit,
+    ViewDirection,
+};
 pub use encoding::PositionalEncoding;
 pub use march::MarchedRays;
 pub use nerf::CanonicalNerf;

@@ -3,7 +3,7 @@
 
 use burn::prelude::*;
 
-use super::animatable::{consistency_mask, surviving_indices};
+use super::animatable::{consistency_mask, residual_penalty, surviving_indices};
 use super::{AnimatableNerf, CanonicalInputs, FrameInputs};
 use crate::tensor::to_host;
 
@@ -17,6 +17,8 @@ pub struct Stage2Loss {
     /// Points sampled in the canonical box, skinned forward with `w^can`: `w_new(x)` vs `w^can(x_can)`.
     /// This second direction is in the authors' code, not in the paper.
     pub canonical: Tensor<1>,
+    /// `mean(F²)` of the new field's residual over both point sets (zero without the neural field).
+    pub residual: Tensor<1>,
 }
 
 impl AnimatableNerf {
@@ -42,7 +44,7 @@ impl AnimatableNerf {
         let index = Tensor::<1, Int>::from_data(TensorData::new(keep, [m]), &device);
         let points = pose_points.select(0, index);
         let prior = frame.volume.sample(points.clone()).weights;
-        let w_new = self.frame_weights(points.clone(), prior, frame.code);
+        let (w_new, residual_pose) = self.frame_blend(points.clone(), prior, frame.code);
         let warped = frame.bones.inverse(points, w_new.clone());
         let w_can = self.canonical_weights(warped.clone(), canonical);
         // Density is zero outside the canonical box, so the mask keeps only points inside it (and the densest).
@@ -54,14 +56,18 @@ impl AnimatableNerf {
             .detach();
         let posed = frame.bones.forward(canonical_points.clone(), w_can.clone());
         let prior = frame.volume.sample(posed.clone()).weights;
-        let w_new = self.frame_weights(posed, prior, frame.code);
+        let (w_new, residual_canonical) = self.frame_blend(posed, prior, frame.code);
         let mask = consistency_mask(self.canonical_density(canonical_points, canonical));
         let canonical_term = crate::render::blend_consistency(w_new, w_can, mask, kind);
+        let residual = (residual_penalty(residual_pose, &device)
+            + residual_penalty(residual_canonical, &device))
+            * 0.5;
 
         Stage2Loss {
             total: observation.clone() + canonical_term.clone(),
             observation,
             canonical: canonical_term,
+            residual,
         }
     }
 }

@@ -126,6 +126,14 @@ fn tiny_model(device: &Device) -> AnimatableNerf {
     tiny_model_with(ModelPreset::Tiny.config(), device)
 }
 
+/// The tiny preset with PyTorch's initialisation of the residual head.
+fn random_residual() -> ModelConfig {
+    ModelConfig {
+        residual_init: ResidualInit::Random,
+        ..ModelPreset::Tiny.config()
+    }
+}
+
 /// [`tiny_model`] from `config` (12 samples per ray).
 fn tiny_model_with(config: ModelConfig, device: &Device) -> AnimatableNerf {
     shifted_model(config, device, 2.0, 12)
@@ -177,7 +185,8 @@ fn stage1_gradients_reach_every_parameter() {
     let device = cpu_device().autodiff();
     device.seed(1);
     let s = scene(&device, FrameCode::Training(1));
-    let model = tiny_model(&device);
+    // A random residual head, so that the blend trunk's gradient is non-zero at the first step too.
+    let model = tiny_model_with(random_residual(), &device);
     let out = model.render(&s.rays, &s.frame, &s.canonical, None, true);
     assert!(out.surviving_samples > 0 && out.surviving_samples < out.total_samples);
     let loss = color_mse(out.rgb, s.rays.colors.clone().unwrap())
@@ -195,7 +204,7 @@ fn stage2_trains_only_the_novel_field() {
     let device = cpu_device().autodiff();
     device.seed(2);
     let s = scene(&device, FrameCode::Novel(1));
-    let model = tiny_model(&device).with_novel_field(2, &device);
+    let model = tiny_model_with(random_residual(), &device).with_novel_field(2, &device);
     let pose_points = points_tensor(
         &grid_points(Vec3::new(-0.3, -0.5, -0.2), Vec3::new(0.3, 0.8, 0.2)),
         &device,
@@ -660,4 +669,122 @@ fn early_termination_skips_samples_behind_an_opaque_surface_within_its_bound() {
     {
         assert!((a - b).abs() <= threshold, "{a} vs {b}");
     }
+}
+
+#[test]
+fn a_zero_residual_head_starts_at_the_prior_and_learns_from_the_first_step() {
+    let device = cpu_device().autodiff();
+    device.seed(4);
+    let s = scene(&device, FrameCode::Training(1));
+    let model = tiny_model(&device);
+    assert_eq!(model.config().residual_init, ResidualInit::Zero);
+    let pts = grid_points(Vec3::new(-0.3, -0.5, -0.2), Vec3::new(0.3, 0.8, 0.2));
+    let p = points_tensor(&pts, &device);
+    let prior = s.frame.volume.sample(p.clone()).weights;
+    let (weights, residual) = model.frame_blend(p.clone(), prior.clone(), FrameCode::Training(1));
+    assert!(to_host(residual.clone().unwrap()).iter().all(|&f| f == 0.0));
+    let expected = to_host(model.blend.prior_only(prior));
+    let got = to_host(weights);
+    assert!(got.iter().zip(&expected).all(|(a, b)| (a - b).abs() < 1e-6));
+    // The penalty's and the colour loss's gradients reach the head at once, the trunk only through it.
+    let out = model.render(&s.rays, &s.frame, &s.canonical, None, true);
+    let terms = out.consistency.unwrap();
+    let loss = color_mse(out.rgb, s.rays.colors.clone().unwrap())
+        + terms.loss(model.config().consistency)
+        + terms.residual_penalty();
+    let grads = GradientsParams::from_grads(loss.backward(), &model);
+    // Of the blend field's parameters only the head's weight and bias: the trunk, codes and grid feed it
+    // through zero weights.
+    let (with, total) = params_with_gradient(&model.blend, &grads);
+    assert_eq!(
+        with, 2,
+        "{with} of {total} blend-field parameters got a gradient"
+    );
+}
+
+/// Frames whose bones are one rigid motion `Q` (so the warp is `Q⁻¹` whatever the weights) under a global
+/// rotation `G`: a sample at `Q c` seen along world direction `G Q d` is the canonical point `c` seen along
+/// `d`.
+#[test]
+fn the_colour_head_sees_the_direction_in_the_configured_frame() {
+    use glam::{Mat4, Quat};
+    let device = cpu_device();
+    let s = scene(&device, FrameCode::Training(0));
+    let q = Mat4::from_rotation_translation(
+        Quat::from_axis_angle(Vec3::new(0.3, 1.0, -0.2).normalize(), 1.1),
+        Vec3::new(0.05, -0.02, 0.1),
+    );
+    let g = Vec3::new(0.0, 0.0, 0.9);
+    let frame = |bones: Mat4, rh: Vec3| FrameInputs {
+        bones: BoneMatrices::new(
+            &crate::geometry::BoneTransforms::from_matrices(vec![bones; 4]).unwrap(),
+            &device,
+        ),
+        global: GlobalTransform {
+            rh,
+            th: Vec3::new(0.3, -0.1, 0.2),
+        },
+        ..s.frame.clone()
+    };
+    let (posed, rest) = (frame(q, g), frame(Mat4::IDENTITY, Vec3::ZERO));
+    let rotation = GlobalTransform {
+        rh: g,
+        th: Vec3::ZERO,
+    }
+    .rotation()
+        * glam::Mat3::from_mat4(q);
+    let canonical = grid_points(Vec3::new(-0.2, -0.3, -0.1), Vec3::new(0.2, 0.6, 0.1));
+    let dirs: Vec<Vec3> = (0..canonical.len())
+        .map(|i| Vec3::new((i as f32 * 0.7).sin(), 0.5, (i as f32 * 1.3).cos()).normalize())
+        .collect();
+    let posed_points: Vec<Vec3> = canonical.iter().map(|&c| q.transform_point3(c)).collect();
+    let posed_dirs: Vec<Vec3> = dirs.iter().map(|&d| rotation * d).collect();
+    let rgb = |config: ModelConfig, f: &FrameInputs, points: &[Vec3], d: &[Vec3]| {
+        // The same parameters for every call.
+        device.seed(7);
+        let model = tiny_model_with(config, &device);
+        let p = points_tensor(points, &device);
+        let prior = f.volume.sample(p.clone()).weights;
+        let shaded = model.shade(p, prior, points_tensor(d, &device), f, &s.canonical);
+        to_host(shaded.rgb)
+    };
+    let largest = |a: &[f32], b: &[f32]| {
+        a.iter()
+            .zip(b)
+            .map(|(x, y)| (x - y).abs())
+            .fold(0.0, f32::max)
+    };
+    let with = |view_direction| ModelConfig {
+        view_direction,
+        ..ModelPreset::Tiny.config()
+    };
+    // Canonical: the same colours as the rest frame seen along the canonical direction.
+    let a = rgb(
+        with(ViewDirection::Canonical),
+        &posed,
+        &posed_points,
+        &posed_dirs,
+    );
+    let b = rgb(with(ViewDirection::Canonical), &rest, &canonical, &dirs);
+    assert!(largest(&a, &b) < 1e-4, "{}", largest(&a, &b));
+    // World: the head sees the world direction, which differs, and so do the colours.
+    let a = rgb(
+        with(ViewDirection::World),
+        &posed,
+        &posed_points,
+        &posed_dirs,
+    );
+    let b = rgb(with(ViewDirection::World), &rest, &canonical, &dirs);
+    assert!(largest(&a, &b) > 1e-3, "the direction changed nothing");
+    let c = rgb(with(ViewDirection::World), &rest, &canonical, &posed_dirs);
+    assert!(largest(&a, &c) < 1e-4, "{}", largest(&a, &c));
+    // None: no direction reaches the head.
+    let a = rgb(
+        with(ViewDirection::None),
+        &posed,
+        &posed_points,
+        &posed_dirs,
+    );
+    let b = rgb(with(ViewDirection::None), &rest, &canonical, &dirs);
+    assert!(largest(&a, &b) < 1e-4, "{}", largest(&a, &b));
 }

@@ -19,6 +19,8 @@ pub struct HostRays {
     pub colors: Vec<[f32; 3]>,
     /// Pixel `(column, row)` of each ray in its image, for writing renders back.
     pub pixels: Vec<[u32; 2]>,
+    /// Per ray: its pixel is foreground in the mask (empty when rendering without ground truth).
+    pub foreground: Vec<bool>,
 }
 
 impl HostRays {
@@ -66,7 +68,12 @@ impl HostRays {
             pixels: if self.pixels.is_empty() {
                 Vec::new()
             } else {
-                self.pixels[range].to_vec()
+                self.pixels[range.clone()].to_vec()
+            },
+            foreground: if self.foreground.is_empty() {
+                Vec::new()
+            } else {
+                self.foreground[range].to_vec()
             },
         }
     }
@@ -86,6 +93,8 @@ pub struct RayBatch {
     pub far: Tensor<1>,
     /// `[R, 3]` target colours, when known.
     pub colors: Option<Tensor<2>>,
+    /// `[R]` 1 where the ray's pixel is foreground in the mask, 0 elsewhere, when known.
+    pub foreground: Option<Tensor<1>>,
 }
 
 impl RayBatch {
@@ -101,6 +110,10 @@ impl RayBatch {
             far: Tensor::from_floats(rays.far.as_slice(), device),
             colors: (!rays.colors.is_empty())
                 .then(|| from_rows(rays.colors.as_flattened(), n, 3, device)),
+            foreground: (!rays.foreground.is_empty()).then(|| {
+                let values: Vec<f32> = rays.foreground.iter().map(|&f| f as u8 as f32).collect();
+                Tensor::from_floats(values.as_slice(), device)
+            }),
         }
     }
 

@@ -299,6 +299,16 @@ pub fn build_body(shape: &BodyShape) -> Result<Body, SynthError> {
     })
 }
 
+/// Weights of `shape`'s parts at `vertices` (canonical, metres) with blending length `softness`: the
+/// weights [`build_body`] gives its own vertices when `softness = shape.skinning_softness`.
+pub fn skinning_weights_at(
+    shape: &BodyShape,
+    vertices: &[Vec3],
+    softness: f32,
+) -> Result<SkinningWeights, SynthError> {
+    skinning_weights(vertices, &parts(shape, &shape.rest_joints()), softness)
+}
+
 /// Weights from each joint's distance `d_k` to the surface of its own parts: `softmax(−d_k / softness)`,
 /// so a vertex follows the part it lies on and blends smoothly where parts meet (knees, elbows, waist).
 fn skinning_weights(

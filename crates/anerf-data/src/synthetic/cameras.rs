@@ -18,6 +18,10 @@ pub struct RigSpec {
     pub radius: f32,
     /// Mean camera height above the ground (metres).
     pub height: f32,
+    /// Camera heights in turn around the ring (metres), repeated; empty gives every camera `height`.
+    /// Lets held-out cameras see the body from heights the training cameras never had.
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub heights: Vec<f32>,
     /// Camera heights vary by up to this much around `height` (metres).
     pub height_jitter: f32,
     /// Height of the point every camera looks at (metres).
@@ -35,6 +39,7 @@ impl Default for RigSpec {
             resolution: 256,
             radius: 3.0,
             height: 1.1,
+            heights: Vec::new(),
             height_jitter: 0.4,
             target_height: 0.9,
             half_field: 1.1,
@@ -57,23 +62,39 @@ impl RigSpec {
                 format!("{} (expected 16 to 8192 pixels)", self.resolution),
             ));
         }
-        for (name, v, lo, hi) in [
+        SynthError::check_ranges(&[
             ("rig.radius", self.radius, 1.0, 100.0),
             ("rig.height", self.height, 0.0, 10.0),
             ("rig.height_jitter", self.height_jitter, 0.0, 2.0),
             ("rig.target_height", self.target_height, 0.0, 3.0),
             ("rig.half_field", self.half_field, 0.3, 5.0),
             ("rig.distortion", self.distortion, 0.0, 0.2),
-        ] {
-            if !(v.is_finite() && (lo..=hi).contains(&v)) {
-                return Err(SynthError::invalid(
-                    name,
-                    format!("{v} (expected {lo} to {hi})"),
-                ));
-            }
-        }
-        Ok(())
+        ])?;
+        let heights: Vec<_> = self
+            .heights
+            .iter()
+            .map(|&h| ("rig.heights", h, 0.0, 10.0))
+            .collect();
+        SynthError::check_ranges(&heights)
     }
+
+    /// The mean height of camera `c` (metres): `heights` in turn, else `height`.
+    fn base_height(&self, c: usize) -> f32 {
+        if self.heights.is_empty() {
+            self.height
+        } else {
+            self.heights[c % self.heights.len()]
+        }
+    }
+}
+
+/// The world-to-camera rotation of a camera at `centre` looking at `target` in the z-up world: rows are
+/// the camera's axes in world coordinates (x right, y down in the image, z forwards).
+pub fn look_at(centre: Vec3, target: Vec3) -> Mat3 {
+    let forward = (target - centre).normalize();
+    let right = forward.cross(Vec3::Z).normalize();
+    let down = forward.cross(right);
+    Mat3::from_cols(right, down, forward).transpose()
 }
 
 /// The cameras of `rig`: evenly spread around the ring with a little jitter in angle and height, each
@@ -89,13 +110,9 @@ pub fn ring_cameras(rig: &RigSpec, rng: &mut SplitMix64) -> Result<Vec<Camera>, 
             let centre = Vec3::new(
                 rig.radius * angle.cos(),
                 rig.radius * angle.sin(),
-                rig.height + rng.range(-rig.height_jitter, rig.height_jitter),
+                rig.base_height(c) + rng.range(-rig.height_jitter, rig.height_jitter),
             );
-            let forward = (target - centre).normalize();
-            let right = forward.cross(Vec3::Z).normalize();
-            let down = forward.cross(right);
-            // Rows of R are the camera's axes in world coordinates (x right, y down, z forwards).
-            let rotation = Mat3::from_cols(right, down, forward).transpose();
+            let rotation = look_at(centre, target);
             let distance = (target - centre).length() - 0.5;
             let focal = 0.5 * size * distance / rig.half_field * rng.range(0.97, 1.03);
             let principal = [

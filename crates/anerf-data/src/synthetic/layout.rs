@@ -6,6 +6,7 @@ use std::path::Path;
 use std::time::Instant;
 
 use anerf_core::geometry::{forward_lbs_point, Camera, CanonicalPose, GlobalTransform, Pose};
+use anerf_core::mesh::TriMesh;
 use anerf_core::FrameId;
 use glam::Vec3;
 use image::ImageEncoder;
@@ -14,6 +15,8 @@ use rayon::prelude::*;
 use super::appearance::Outfit;
 use super::body::{build_body, Body};
 use super::cameras::ring_cameras;
+use super::clothing::dress;
+use super::lighting::Lighting;
 use super::motion::{angles_to_axis_angle, clip_angles, global_rotation, heading, ClipSpec};
 use super::raster::{render, RenderedView, Scene};
 use super::rng::SplitMix64;
@@ -61,11 +64,13 @@ pub fn write_subject(spec: &SyntheticSpec, out_dir: &Path) -> Result<SyntheticSu
     result
 }
 
-/// One frame's pose and posed surface.
+/// One frame's pose and posed surfaces.
 struct PosedFrame {
     pose: Pose,
-    /// World space (metres).
+    /// The described body posed (world space, metres): `new_vertices/<i>.npy`.
     vertices: Vec<Vec3>,
+    /// The rendered surface posed (world space, metres).
+    surface: Vec<Vec3>,
 }
 
 fn camera_folder(view: usize) -> String {
@@ -87,6 +92,20 @@ fn write_into(
     start: Instant,
 ) -> Result<SyntheticSummary, SynthError> {
     let body = build_body(&spec.body)?;
+    // The surface the cameras see, and the body the files describe: the same without clothing.
+    let (surface, body) = match &spec.clothing {
+        Some(clothing) => {
+            let (garment, prior) = dress(&body, &spec.body, clothing)?;
+            (
+                garment,
+                Body {
+                    weights: prior,
+                    ..body
+                },
+            )
+        }
+        None => (body.clone(), body),
+    };
     let cameras = ring_cameras(&spec.rig, &mut SplitMix64::new(spec.seed))?;
     let clips = [&spec.training, &spec.novel_pose];
     let frames: Vec<PosedFrame> = clips
@@ -94,7 +113,7 @@ fn write_into(
         .flat_map(|clip| (0..clip.frames).map(move |f| (*clip, f)))
         .collect::<Vec<_>>()
         .par_iter()
-        .map(|&(clip, f)| pose_frame(&body, clip, f))
+        .map(|&(clip, f)| pose_frame(&body, &surface, clip, f))
         .collect::<Result<_, _>>()?;
     let body_done = Instant::now();
 
@@ -107,28 +126,43 @@ fn write_into(
         }
     }
     let outfit = Outfit::new(&spec.body);
-    let jobs: Vec<(usize, usize)> = (0..frames.len())
-        .flat_map(|f| (0..cameras.len()).map(move |v| (f, v)))
-        .collect();
-    let counts: Vec<usize> = jobs
+    // Frame by frame (its shadow maps serve every camera), cameras in turn.
+    let counts: Vec<Vec<usize>> = frames
         .par_iter()
-        .map(|&(f, v)| {
+        .enumerate()
+        .map(|(f, frame)| {
+            let world_normals = TriMesh {
+                vertices: frame.surface.clone(),
+                faces: surface.mesh.faces.clone(),
+            }
+            .vertex_normals();
             let scene = Scene {
-                world: &frames[f].vertices,
-                faces: &body.mesh.faces,
+                world: &frame.surface,
+                world_normals: &world_normals,
+                faces: &surface.mesh.faces,
                 canonical: &body.mesh.vertices,
-                normals: &body.normals,
+                normals: &surface.normals,
             };
-            let view = render(&cameras[v], &scene, spec.supersampling, |p, n| {
-                outfit.colour(p, n)
-            });
-            write_images(
-                &view,
-                &staging.join(image_path(v, f)),
-                &staging.join(mask_path(v, f)),
-                spec.jpeg_quality,
-            )?;
-            Ok(view.mask.iter().filter(|&&m| m > 0).count())
+            let lit = match &spec.lighting {
+                Lighting::Studio(lights) => Some(lights.frame(&frame.surface, &surface.mesh.faces)),
+                Lighting::BodyFixed => None,
+            };
+            (0..cameras.len())
+                .map(|v| {
+                    let eye = cameras[v].center();
+                    let view = render(&cameras[v], &scene, spec.supersampling, |s| match &lit {
+                        Some(lit) => lit.shade(outfit.albedo(s.canonical), s, eye),
+                        None => outfit.colour(s.canonical, s.canonical_normal),
+                    });
+                    write_images(
+                        &view,
+                        &staging.join(image_path(v, f)),
+                        &staging.join(mask_path(v, f)),
+                        spec.jpeg_quality,
+                    )?;
+                    Ok(view.mask.iter().filter(|&&m| m > 0).count())
+                })
+                .collect()
         })
         .collect::<Result<_, SynthError>>()?;
     let images_done = Instant::now();
@@ -190,7 +224,7 @@ fn write_into(
     };
     Ok(SyntheticSummary {
         subject,
-        foreground_pixels: counts.chunks(cameras.len()).map(|c| c.to_vec()).collect(),
+        foreground_pixels: counts,
         posed_vertices: frames.into_iter().map(|f| f.vertices).collect(),
         splits,
         timings: Timings {
@@ -203,8 +237,14 @@ fn write_into(
 }
 
 /// Poses frame `f` of `clip`: joint rotations from the clip, `Rh` from its heading, and `Th` that puts the
-/// lowest vertex on the ground (`z = 0`). World vertices are `R_h · LBS(canonical) + T_h`.
-fn pose_frame(body: &Body, clip: &ClipSpec, f: usize) -> Result<PosedFrame, SynthError> {
+/// rendered surface's lowest vertex on the ground (`z = 0`). World vertices are
+/// `R_h · LBS(canonical) + T_h`, for the described body and the rendered surface alike.
+fn pose_frame(
+    body: &Body,
+    surface: &Body,
+    clip: &ClipSpec,
+    f: usize,
+) -> Result<PosedFrame, SynthError> {
     let mut pose = Pose {
         joint_rotations: angles_to_axis_angle(&clip_angles(clip, f)).to_vec(),
         global: GlobalTransform {
@@ -214,17 +254,28 @@ fn pose_frame(body: &Body, clip: &ClipSpec, f: usize) -> Result<PosedFrame, Synt
     };
     let transforms = body.skeleton.bone_transforms(&pose, CanonicalPose::TPose)?;
     let rotation = pose.global.rotation();
-    let rotated: Vec<Vec3> = body
-        .mesh
-        .vertices
-        .iter()
-        .enumerate()
-        .map(|(v, &x)| forward_lbs_point(x, body.weights.row(v), &transforms).map(|p| rotation * p))
-        .collect::<Result<_, _>>()?;
-    let floor = rotated.iter().map(|p| p.z).fold(f32::INFINITY, f32::min);
+    let posed = |b: &Body| -> Result<Vec<Vec3>, SynthError> {
+        Ok(b.mesh
+            .vertices
+            .iter()
+            .enumerate()
+            .map(|(v, &x)| {
+                forward_lbs_point(x, b.weights.row(v), &transforms).map(|p| rotation * p)
+            })
+            .collect::<Result<_, _>>()?)
+    };
+    let seen = posed(surface)?;
+    let floor = seen.iter().map(|p| p.z).fold(f32::INFINITY, f32::min);
     pose.global.th = Vec3::new(0.0, 0.0, -floor);
-    let vertices = rotated.into_iter().map(|p| p + pose.global.th).collect();
-    Ok(PosedFrame { pose, vertices })
+    let th = pose.global.th;
+    let lift = |v: Vec<Vec3>| -> Vec<Vec3> { v.into_iter().map(|p| p + th).collect() };
+    let vertices = lift(posed(body)?);
+    let surface = lift(seen);
+    Ok(PosedFrame {
+        pose,
+        vertices,
+        surface,
+    })
 }
 
 fn write_images(

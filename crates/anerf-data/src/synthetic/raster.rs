@@ -1,6 +1,6 @@
 //! Ground-truth images by rasterising the posed mesh: a z-buffer over a supersampled grid, perspective-
-//! correct interpolation of canonical positions and normals, and exact masks on a black background.
-//! Independent of the NeRF renderer on purpose.
+//! correct interpolation of canonical and world positions and normals, and exact masks on a black
+//! background. Independent of the NeRF renderer on purpose.
 //!
 //! The mask is the set of pixels whose square touches the projected surface (conservative coverage,
 //! computed exactly per triangle, not from samples), so it holds every pixel with any colour and the
@@ -19,12 +19,25 @@ use glam::{Vec2, Vec3};
 pub struct Scene<'a> {
     /// Vertices in world space (metres).
     pub world: &'a [Vec3],
+    /// Unit outward normals of the posed surface at the vertices (world space).
+    pub world_normals: &'a [Vec3],
     /// Triangles, counter-clockwise seen from outside.
     pub faces: &'a [[u32; 3]],
-    /// The same vertices in canonical space, and their canonical normals: the colour is a function of
+    /// The same vertices in canonical space, and their canonical normals: the albedo is a function of
     /// these, so it follows the body.
     pub canonical: &'a [Vec3],
     pub normals: &'a [Vec3],
+}
+
+/// One visible surface sample, as the rasteriser hands it to the shader.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Surface {
+    /// Canonical position (metres) and unit outward canonical normal.
+    pub canonical: Vec3,
+    pub canonical_normal: Vec3,
+    /// World position (metres) and unit outward normal of the posed surface.
+    pub world: Vec3,
+    pub world_normal: Vec3,
 }
 
 /// One rendered view: 8-bit RGB (row-major, 3 bytes per pixel) and a mask (255 where the pixel's square
@@ -40,20 +53,31 @@ pub struct RenderedView {
 /// Cameras closer than this to a vertex (metres, along the optical axis) drop its triangles.
 const NEAR: f32 = 0.05;
 
-/// Renders `scene` seen by `camera` with `samples × samples` samples per pixel, colouring each sample with
-/// `shade(canonical point, canonical normal)` (linear RGB in `[0, 1]`) and averaging.
-pub fn render(
+/// The z-buffer of one camera over its `samples × samples` supersampled grid.
+struct ZBuffer {
+    /// Grid width (image width × samples).
+    width: usize,
+    /// Inverse camera-space depth (1/metres) of the nearest front face per sample; 0 = empty.
+    inverse_depth: Vec<f32>,
+    /// Per sample: the face seen and its perspective-correct barycentrics `b1`, `b2` (`u32::MAX` = none).
+    hit: Vec<(u32, f32, f32)>,
+}
+
+/// Rasterises the front faces of `world`/`faces` (world space, metres) into `camera`'s grid of
+/// `samples × samples` points per pixel; with `mask`, also marks every pixel a face touches
+/// ([`cover_pixels`], front and back faces).
+fn rasterize(
     camera: &Camera,
-    scene: &Scene,
+    world: &[Vec3],
+    faces: &[[u32; 3]],
     samples: u32,
-    shade: impl Fn(Vec3, Vec3) -> Vec3,
-) -> RenderedView {
+    mut mask: Option<&mut [u8]>,
+) -> ZBuffer {
     let s = samples as usize;
     let (w, h) = (camera.width as usize, camera.height as usize);
     let (sw, sh) = (w * s, h * s);
     // Per vertex: position in sample-grid units and inverse depth (0 = unusable).
-    let projected: Vec<(Vec2, f32)> = scene
-        .world
+    let projected: Vec<(Vec2, f32)> = world
         .iter()
         .map(|&x| {
             let z = camera.world_to_camera(x).z;
@@ -63,22 +87,23 @@ pub fn render(
             }
         })
         .collect();
-    let mut depth = vec![0.0f32; sw * sh]; // inverse depth of the nearest surface; 0 = empty
-    let mut hit = vec![(u32::MAX, 0.0f32, 0.0f32); sw * sh]; // face, perspective-correct b1, b2
-    let mut mask = vec![0u8; w * h];
-    for (fi, f) in scene.faces.iter().enumerate() {
+    let mut depth = vec![0.0f32; sw * sh];
+    let mut hit = vec![(u32::MAX, 0.0f32, 0.0f32); sw * sh];
+    for (fi, f) in faces.iter().enumerate() {
         let [(p0, iz0), (p1, iz1), (p2, iz2)] = f.map(|i| projected[i as usize]);
         if iz0 == 0.0 || iz1 == 0.0 || iz2 == 0.0 {
             continue;
         }
-        // Back faces too: for a closed mesh their union is the same silhouette, and every vertex is
-        // then covered by a face it belongs to.
-        cover_pixels(
-            &mut mask,
-            w,
-            h,
-            [p0, p1, p2].map(|p| p / samples as f32 - Vec2::splat(0.5)),
-        );
+        if let Some(mask) = mask.as_deref_mut() {
+            // Back faces too: for a closed mesh their union is the same silhouette, and every vertex is
+            // then covered by a face it belongs to.
+            cover_pixels(
+                mask,
+                w,
+                h,
+                [p0, p1, p2].map(|p| p / samples as f32 - Vec2::splat(0.5)),
+            );
+        }
         let area = (p1 - p0).perp_dot(p2 - p0);
         // Image y points down, so a face turned towards the camera has negative area; the mesh is
         // closed, so back faces are always hidden behind front faces.
@@ -114,28 +139,50 @@ pub fn render(
             }
         }
     }
+    ZBuffer {
+        width: sw,
+        inverse_depth: depth,
+        hit,
+    }
+}
+
+/// Renders `scene` seen by `camera` with `samples × samples` samples per pixel, colouring each visible
+/// sample with `shade` (linear RGB, clamped to `[0, 1]`) and averaging.
+pub fn render(
+    camera: &Camera,
+    scene: &Scene,
+    samples: u32,
+    shade: impl Fn(&Surface) -> Vec3,
+) -> RenderedView {
+    let s = samples as usize;
+    let (w, h) = (camera.width as usize, camera.height as usize);
+    let mut mask = vec![0u8; w * h];
+    let z = rasterize(camera, scene.world, scene.faces, samples, Some(&mut mask));
     let mut rgb = vec![0u8; w * h * 3];
     let weight = 1.0 / (s * s) as f32;
+    let lerp = |values: &[Vec3], [i0, i1, i2]: [usize; 3], b: Vec3| {
+        values[i0] * b.x + values[i1] * b.y + values[i2] * b.z
+    };
     for v in 0..h {
         for u in 0..w {
             let mut sum = Vec3::ZERO;
             let mut covered = false;
             for sy in 0..s {
                 for sx in 0..s {
-                    let (fi, b1, b2) = hit[(v * s + sy) * sw + u * s + sx];
+                    let (fi, b1, b2) = z.hit[(v * s + sy) * z.width + u * s + sx];
                     if fi == u32::MAX {
                         continue;
                     }
                     covered = true;
-                    let [i0, i1, i2] = scene.faces[fi as usize].map(|i| i as usize);
-                    let b0 = 1.0 - b1 - b2;
-                    let point = scene.canonical[i0] * b0
-                        + scene.canonical[i1] * b1
-                        + scene.canonical[i2] * b2;
-                    let normal =
-                        (scene.normals[i0] * b0 + scene.normals[i1] * b1 + scene.normals[i2] * b2)
-                            .normalize_or_zero();
-                    sum += shade(point, normal).clamp(Vec3::ZERO, Vec3::ONE);
+                    let corners = scene.faces[fi as usize].map(|i| i as usize);
+                    let b = Vec3::new(1.0 - b1 - b2, b1, b2);
+                    let surface = Surface {
+                        canonical: lerp(scene.canonical, corners, b),
+                        canonical_normal: lerp(scene.normals, corners, b).normalize_or_zero(),
+                        world: lerp(scene.world, corners, b),
+                        world_normal: lerp(scene.world_normals, corners, b).normalize_or_zero(),
+                    };
+                    sum += shade(&surface).clamp(Vec3::ZERO, Vec3::ONE);
                 }
             }
             if covered {
@@ -150,6 +197,56 @@ pub fn render(
         height: camera.height,
         rgb,
         mask,
+    }
+}
+
+/// The depth of the nearest front face seen by a pinhole camera (no distortion), per pixel: a light's
+/// shadow map.
+#[derive(Debug, Clone)]
+pub struct DepthMap {
+    pub camera: Camera,
+    /// Row-major inverse camera-space depth (1/metres); 0 where no surface is seen.
+    inverse_depth: Vec<f32>,
+}
+
+impl DepthMap {
+    /// Rasterises the front faces of a mesh (world space, metres) at one sample per pixel.
+    pub fn render(camera: Camera, world: &[Vec3], faces: &[[u32; 3]]) -> Self {
+        let z = rasterize(&camera, world, faces, 1, None);
+        Self {
+            camera,
+            inverse_depth: z.inverse_depth,
+        }
+    }
+
+    /// Camera-space depth (metres) of the nearest surface through pixel `(u, v)`; `None` where the pixel is
+    /// empty or outside the image.
+    pub fn depth(&self, u: i64, v: i64) -> Option<f32> {
+        let (w, h) = (self.camera.width as i64, self.camera.height as i64);
+        if !(0..w).contains(&u) || !(0..h).contains(&v) {
+            return None;
+        }
+        let iz = self.inverse_depth[(v * w + u) as usize];
+        (iz > 0.0).then(|| 1.0 / iz)
+    }
+
+    /// The fraction of the 3×3 pixels around world point `x`'s projection whose nearest surface is not
+    /// in front of `x` by more than `bias` metres (percentage-closer filtering): 1 lit, 0 in shadow.
+    pub fn visibility(&self, x: Vec3, bias: f32) -> f32 {
+        let z = self.camera.world_to_camera(x).z;
+        let Some(p) = self.camera.project_distorted(x).filter(|_| z > NEAR) else {
+            return 1.0;
+        };
+        let (u, v) = (p.x.round() as i64, p.y.round() as i64);
+        let mut lit = 0;
+        for dv in -1..=1 {
+            for du in -1..=1 {
+                if self.depth(u + du, v + dv).is_none_or(|d| z <= d + bias) {
+                    lit += 1;
+                }
+            }
+        }
+        lit as f32 / 9.0
     }
 }
 
@@ -237,6 +334,7 @@ mod tests {
         fn scene(&self) -> Scene<'_> {
             Scene {
                 world: &self.mesh.vertices,
+                world_normals: &self.normals,
                 faces: &self.mesh.faces,
                 canonical: &self.mesh.vertices,
                 normals: &self.normals,
@@ -250,7 +348,7 @@ mod tests {
         let sphere = Sphere::new(r);
         let scene = sphere.scene();
         let cam = camera([0.0; 5]);
-        let view = render(&cam, &scene, 4, |_, _| Vec3::ONE);
+        let view = render(&cam, &scene, 4, |_| Vec3::ONE);
         // The silhouette of a sphere at distance d seen by a pinhole is a disc of radius f·r/√(d² − r²).
         let radius = 100.0 * r / (9.0f32 - r * r).sqrt();
         let centre = Vec2::new(31.5, 32.0);
@@ -286,7 +384,9 @@ mod tests {
         // The visible part of a sphere seen from distance 3 is the cap y < −r²/3 facing the camera.
         let sphere = Sphere::new(0.6);
         let scene = sphere.scene();
-        let view = render(&camera([0.0; 5]), &scene, 1, |p, _| Vec3::splat(0.5 - p.y));
+        let view = render(&camera([0.0; 5]), &scene, 1, |s| {
+            Vec3::splat(0.5 - s.canonical.y)
+        });
         let mut seen = 0;
         for i in 0..64 * 64 {
             if view.rgb[3 * i] > 0 {
@@ -314,12 +414,15 @@ mod tests {
         let normals = [Vec3::Z; 4];
         let scene = Scene {
             world: &world,
+            world_normals: &normals,
             faces: &faces,
             canonical: &world,
             normals: &normals,
         };
         let cam = camera([0.0; 5]);
-        let view = render(&cam, &scene, 1, |p, _| Vec3::splat((p.y + 3.0) / 20.0));
+        let view = render(&cam, &scene, 1, |s| {
+            Vec3::splat((s.canonical.y + 3.0) / 20.0)
+        });
         let mut checked = 0;
         for v in 40..64 {
             for u in [10, 31, 50] {
@@ -346,8 +449,8 @@ mod tests {
         let sphere = Sphere::new(0.5);
         let scene = sphere.scene();
         let cam = camera([-0.2, 0.05, 0.003, -0.002, 0.0]);
-        let view = render(&cam, &scene, 3, |_, _| Vec3::ONE);
-        let plain = render(&camera([0.0; 5]), &scene, 3, |_, _| Vec3::ONE);
+        let view = render(&cam, &scene, 3, |_| Vec3::ONE);
+        let plain = render(&camera([0.0; 5]), &scene, 3, |_| Vec3::ONE);
         assert_ne!(view.mask, plain.mask, "distortion changed nothing");
         for &x in &sphere.mesh.vertices {
             let p = cam.project_distorted(x).unwrap().round();

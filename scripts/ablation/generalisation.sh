@@ -1,0 +1,12 @@
+#!/usr/bin/env bash
+# The held-out-view gap (docs/QUALITY.md): the model changes A/B'd on the realistic built-in subject
+# (`--config` for another subject, e.g. configs/synthetic/realistic-exact.toml; `--quick` for the tiny
+# one), each trained, animated and evaluated on the training views, the held-out views and the novel poses.
+# Make the subject first: anerf synth --preset realistic --out data/synthetic/realistic
+DEFAULT_CONFIG="$(cd "$(dirname "$0")/../.." && pwd)/configs/synthetic/realistic.toml"
+source "$(dirname "$0")/common.sh"
+run_variant authors all --set 'model.residual_init="random"' --set 'model.view_direction="world"'
+run_variant zero_residual all --set 'model.view_direction="world"'
+run_variant canonical_dirs all --set 'model.view_direction="canonical"'
+run_variant no_view_dependence all --set 'model.view_direction="none"'
+write_table "Variant"
