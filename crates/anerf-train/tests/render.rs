@@ -111,9 +111,8 @@ fn consistency(model: &AnimatableNerf, targets: &[PoseTarget], exp: &Experiment)
 }
 
 /// The field fitted for pose files lowers the consistency loss it is fitted on, from that of a fresh field.
-/// The fresh field here has PyTorch's random head, so that it starts away from its optimum (with the default
-/// zero head it starts at the body model's weights, which after 8 stage-1 steps are already the optimum);
-/// the bound is a few per cent, well above the noise of fixed evaluation points.
+/// Stage 2 starts close to its optimum (the residual starts near zero; the demo's stage 2 lowers its loss by
+/// 13 % over 300 steps), so the bound is a few per cent, well above the noise of fixed evaluation points.
 #[test]
 fn fitting_pose_codes_lowers_their_consistency_loss() {
     let dir = tempfile::tempdir().unwrap();
@@ -121,7 +120,6 @@ fn fitting_pose_codes_lowers_their_consistency_loss() {
         dir.path(),
         &[
             "train.iterations=8",
-            "model.residual_init=\"random\"",
             "animate.iterations=150",
             "animate.lr=1e-2",
             "animate.lr_final=1e-3",

@@ -152,7 +152,13 @@ impl AnimatableNerf {
     pub fn new(config: &ModelConfig, sizes: ModelSizes, device: &Device) -> Self {
         Self {
             nerf: CanonicalNerf::new(config, sizes.training_frames, device),
-            blend: BlendWeightField::new(config, sizes.training_frames + 1, sizes.joints, device),
+            blend: BlendWeightField::new(
+                config,
+                sizes.training_frames + 1,
+                sizes.joints,
+                config.residual_init,
+                device,
+            ),
             novel_blend: None,
             config: config.clone(),
             occupancy: None,
@@ -205,6 +211,7 @@ impl AnimatableNerf {
                 &self.config,
                 novel_frames,
                 joints,
+                self.config.novel_residual_init,
                 device,
             )),
             ..self.freeze_stage1()

@@ -31,8 +31,15 @@ pub struct BlendWeightField {
 }
 
 impl BlendWeightField {
-    /// A freshly initialised field with `codes` latent rows and `joints` outputs.
-    pub fn new(config: &ModelConfig, codes: usize, joints: usize, device: &Device) -> Self {
+    /// A freshly initialised field with `codes` latent rows and `joints` outputs, its output layer started
+    /// as `init` says.
+    pub fn new(
+        config: &ModelConfig,
+        codes: usize,
+        joints: usize,
+        init: ResidualInit,
+        device: &Device,
+    ) -> Self {
         let xyz_pe = PositionalEncoding {
             frequencies: config.xyz_frequencies,
         };
@@ -52,7 +59,7 @@ impl BlendWeightField {
             grid,
             xyz: xyz_pe,
             trunk: trunk.init(device),
-            head: residual_head(config, joints, device),
+            head: residual_head(config.width, joints, init, device),
             codes: EmbeddingConfig::new(codes.max(1), config.blend_code_dim).init(device),
             parameterisation: config.blend,
         }
@@ -88,9 +95,9 @@ impl BlendWeightField {
 }
 
 /// The output layer `F` of a field: zero (the field starts at the prior) or PyTorch's initialisation.
-fn residual_head(config: &ModelConfig, joints: usize, device: &Device) -> Linear {
-    let mut head = torch_linear(config.width, joints, device);
-    if config.residual_init == ResidualInit::Zero {
+fn residual_head(width: usize, joints: usize, init: ResidualInit, device: &Device) -> Linear {
+    let mut head = torch_linear(width, joints, device);
+    if init == ResidualInit::Zero {
         head.weight = Param::from_tensor(Tensor::zeros(head.weight.dims(), device));
         head.bias = Some(Param::from_tensor(Tensor::zeros([joints], device)));
     }

@@ -126,10 +126,10 @@ fn tiny_model(device: &Device) -> AnimatableNerf {
     tiny_model_with(ModelPreset::Tiny.config(), device)
 }
 
-/// The tiny preset with PyTorch's initialisation of the residual head.
-fn random_residual() -> ModelConfig {
+/// The tiny preset with a zero residual head.
+fn zero_residual() -> ModelConfig {
     ModelConfig {
-        residual_init: ResidualInit::Random,
+        residual_init: ResidualInit::Zero,
         ..ModelPreset::Tiny.config()
     }
 }
@@ -185,8 +185,7 @@ fn stage1_gradients_reach_every_parameter() {
     let device = cpu_device().autodiff();
     device.seed(1);
     let s = scene(&device, FrameCode::Training(1));
-    // A random residual head, so that the blend trunk's gradient is non-zero at the first step too.
-    let model = tiny_model_with(random_residual(), &device);
+    let model = tiny_model(&device);
     let out = model.render(&s.rays, &s.frame, &s.canonical, None, true);
     assert!(out.surviving_samples > 0 && out.surviving_samples < out.total_samples);
     let loss = color_mse(out.rgb, s.rays.colors.clone().unwrap())
@@ -204,7 +203,13 @@ fn stage2_trains_only_the_novel_field() {
     let device = cpu_device().autodiff();
     device.seed(2);
     let s = scene(&device, FrameCode::Novel(1));
-    let model = tiny_model_with(random_residual(), &device).with_novel_field(2, &device);
+    // A random head on the novel field, so that its trunk's gradient is non-zero at the first step too
+    // (with the default zero head only the head learns at first).
+    let config = ModelConfig {
+        novel_residual_init: ResidualInit::Random,
+        ..ModelPreset::Tiny.config()
+    };
+    let model = tiny_model_with(config, &device).with_novel_field(2, &device);
     let pose_points = points_tensor(
         &grid_points(Vec3::new(-0.3, -0.5, -0.2), Vec3::new(0.3, 0.8, 0.2)),
         &device,
@@ -676,8 +681,7 @@ fn a_zero_residual_head_starts_at_the_prior_and_learns_from_the_first_step() {
     let device = cpu_device().autodiff();
     device.seed(4);
     let s = scene(&device, FrameCode::Training(1));
-    let model = tiny_model(&device);
-    assert_eq!(model.config().residual_init, ResidualInit::Zero);
+    let model = tiny_model_with(zero_residual(), &device);
     let pts = grid_points(Vec3::new(-0.3, -0.5, -0.2), Vec3::new(0.3, 0.8, 0.2));
     let p = points_tensor(&pts, &device);
     let prior = s.frame.volume.sample(p.clone()).weights;
@@ -739,10 +743,8 @@ fn the_colour_head_sees_the_direction_in_the_configured_frame() {
         .collect();
     let posed_points: Vec<Vec3> = canonical.iter().map(|&c| q.transform_point3(c)).collect();
     let posed_dirs: Vec<Vec3> = dirs.iter().map(|&d| rotation * d).collect();
-    let rgb = |config: ModelConfig, f: &FrameInputs, points: &[Vec3], d: &[Vec3]| {
-        // The same parameters for every call.
-        device.seed(7);
-        let model = tiny_model_with(config, &device);
+    // Each comparison is between two shadings by one model: no two models need equal parameters.
+    let rgb = |model: &AnimatableNerf, f: &FrameInputs, points: &[Vec3], d: &[Vec3]| {
         let p = points_tensor(points, &device);
         let prior = f.volume.sample(p.clone()).weights;
         let shaded = model.shade(p, prior, points_tensor(d, &device), f, &s.canonical);
@@ -754,37 +756,69 @@ fn the_colour_head_sees_the_direction_in_the_configured_frame() {
             .map(|(x, y)| (x - y).abs())
             .fold(0.0, f32::max)
     };
-    let with = |view_direction| ModelConfig {
-        view_direction,
-        ..ModelPreset::Tiny.config()
+    let with = |view_direction| {
+        tiny_model_with(
+            ModelConfig {
+                view_direction,
+                ..ModelPreset::Tiny.config()
+            },
+            &device,
+        )
     };
     // Canonical: the same colours as the rest frame seen along the canonical direction.
+    let model = with(ViewDirection::Canonical);
     let a = rgb(
-        with(ViewDirection::Canonical),
+        &model,
         &posed,
         &posed_points,
         &posed_dirs,
     );
-    let b = rgb(with(ViewDirection::Canonical), &rest, &canonical, &dirs);
+    let b = rgb(&model, &rest, &canonical, &dirs);
     assert!(largest(&a, &b) < 1e-4, "{}", largest(&a, &b));
     // World: the head sees the world direction, which differs, and so do the colours.
+    let model = with(ViewDirection::World);
     let a = rgb(
-        with(ViewDirection::World),
+        &model,
         &posed,
         &posed_points,
         &posed_dirs,
     );
-    let b = rgb(with(ViewDirection::World), &rest, &canonical, &dirs);
+    let b = rgb(&model, &rest, &canonical, &dirs);
     assert!(largest(&a, &b) > 1e-3, "the direction changed nothing");
-    let c = rgb(with(ViewDirection::World), &rest, &canonical, &posed_dirs);
+    let c = rgb(&model, &rest, &canonical, &posed_dirs);
     assert!(largest(&a, &c) < 1e-4, "{}", largest(&a, &c));
     // None: no direction reaches the head.
+    let model = with(ViewDirection::None);
     let a = rgb(
-        with(ViewDirection::None),
+        &model,
         &posed,
         &posed_points,
         &posed_dirs,
     );
-    let b = rgb(with(ViewDirection::None), &rest, &canonical, &dirs);
+    let b = rgb(&model, &rest, &canonical, &dirs);
     assert!(largest(&a, &b) < 1e-4, "{}", largest(&a, &b));
+}
+
+/// By default the stage-1 field starts random (the authors' code) and the stage-2 field at the body model's
+/// weights.
+#[test]
+fn the_novel_pose_field_starts_at_the_prior() {
+    let device = cpu_device();
+    device.seed(5);
+    let s = scene(&device, FrameCode::Novel(1));
+    let model = tiny_model(&device).with_novel_field(2, &device);
+    let p = points_tensor(
+        &grid_points(Vec3::new(-0.3, -0.5, -0.2), Vec3::new(0.3, 0.8, 0.2)),
+        &device,
+    );
+    let prior = s.frame.volume.sample(p.clone()).weights;
+    let (novel, residual) = model.frame_blend(p.clone(), prior.clone(), FrameCode::Novel(1));
+    assert!(to_host(residual.unwrap()).iter().all(|&f| f == 0.0));
+    let expected = to_host(model.blend.prior_only(prior.clone()));
+    assert!(to_host(novel)
+        .iter()
+        .zip(&expected)
+        .all(|(a, b)| (a - b).abs() < 1e-6));
+    let (_, training) = model.frame_blend(p, prior, FrameCode::Training(1));
+    assert!(to_host(training.unwrap()).iter().any(|&f| f.abs() > 1e-3));
 }
