@@ -29,8 +29,10 @@ pub struct Plateau {
 
 impl Plateau {
     /// Records the mean loss of the window ending at `step`. Returns (and remembers) true once the loss
-    /// has not fallen below `(1 − tolerance) · best` for `patience` steps; `patience = 0` never stops.
-    pub fn update(&mut self, step: usize, loss: f32, patience: usize, tolerance: f32) -> bool {
+    /// has not fallen below `(1 − stage.plateau_tolerance) · best` for `stage.plateau_steps` steps;
+    /// `plateau_steps = 0` never stops.
+    pub fn update(&mut self, step: usize, loss: f32, stage: &StageConfig) -> bool {
+        let (patience, tolerance) = (stage.plateau_steps, stage.plateau_tolerance);
         if patience == 0 || !loss.is_finite() {
             return false;
         }
@@ -55,22 +57,31 @@ mod tests {
 
     #[test]
     fn a_plateau_stops_after_its_patience_and_progress_resets_it() {
+        let cfg = StageConfig {
+            plateau_steps: 300,
+            plateau_tolerance: 0.01,
+            ..stage(LrSchedule::Paper)
+        };
         let mut p = Plateau::default();
         // Falling by 10 % per window: never a plateau.
         let mut loss = 1.0;
         for step in (100..=1000).step_by(100) {
-            assert!(!p.update(step, loss, 300, 0.01), "step {step}");
+            assert!(!p.update(step, loss, &cfg), "step {step}");
             loss *= 0.9;
         }
         // Then flat within the tolerance: stops 300 steps after the last real improvement.
         let best = loss / 0.9;
-        assert!(!p.update(1100, best * 0.995, 300, 0.01));
-        assert!(!p.update(1200, best * 1.01, 300, 0.01));
-        assert!(p.update(1300, best * 0.999, 300, 0.01));
+        assert!(!p.update(1100, best * 0.995, &cfg));
+        assert!(!p.update(1200, best * 1.01, &cfg));
+        assert!(p.update(1300, best * 0.999, &cfg));
         assert!(p.reached);
         // Patience 0 disables the stop.
+        let off_cfg = StageConfig {
+            plateau_steps: 0,
+            ..cfg
+        };
         let mut off = Plateau::default();
-        assert!((1..100).all(|s| !off.update(s, 1.0, 0, 0.01)));
+        assert!((1..100).all(|s| !off.update(s, 1.0, &off_cfg)));
     }
 
     fn stage(schedule: LrSchedule) -> StageConfig {

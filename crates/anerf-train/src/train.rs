@@ -311,12 +311,7 @@ pub fn train_stage1(
             );
             log.append(&line)?;
             window = Window::default();
-            state.plateau.update(
-                state.step,
-                line.loss,
-                cfg.plateau_steps,
-                cfg.plateau_tolerance,
-            );
+            state.plateau.update(state.step, line.loss, &cfg);
         }
         bar.set_step(state.step);
         if cfg.checkpoint_every > 0 && state.step % cfg.checkpoint_every == 0 {
@@ -508,12 +503,7 @@ pub fn train_stage2(
             );
             log.append(&line)?;
             window = Window::default();
-            state.plateau.update(
-                state.step,
-                line.loss,
-                cfg.plateau_steps,
-                cfg.plateau_tolerance,
-            );
+            state.plateau.update(state.step, line.loss, &cfg);
         }
         bar.set_step(state.step);
         if cfg.checkpoint_every > 0 && state.step % cfg.checkpoint_every == 0 {

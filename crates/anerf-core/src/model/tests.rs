@@ -765,37 +765,24 @@ fn the_colour_head_sees_the_direction_in_the_configured_frame() {
             &device,
         )
     };
+    // For each frame: the posed frame's samples seen along `G Q d`, and the rest frame's along `d`.
+    let pair = |model: &AnimatableNerf| {
+        (
+            rgb(model, &posed, &posed_points, &posed_dirs),
+            rgb(model, &rest, &canonical, &dirs),
+        )
+    };
     // Canonical: the same colours as the rest frame seen along the canonical direction.
-    let model = with(ViewDirection::Canonical);
-    let a = rgb(
-        &model,
-        &posed,
-        &posed_points,
-        &posed_dirs,
-    );
-    let b = rgb(&model, &rest, &canonical, &dirs);
+    let (a, b) = pair(&with(ViewDirection::Canonical));
     assert!(largest(&a, &b) < 1e-4, "{}", largest(&a, &b));
     // World: the head sees the world direction, which differs, and so do the colours.
     let model = with(ViewDirection::World);
-    let a = rgb(
-        &model,
-        &posed,
-        &posed_points,
-        &posed_dirs,
-    );
-    let b = rgb(&model, &rest, &canonical, &dirs);
+    let (a, b) = pair(&model);
     assert!(largest(&a, &b) > 1e-3, "the direction changed nothing");
     let c = rgb(&model, &rest, &canonical, &posed_dirs);
     assert!(largest(&a, &c) < 1e-4, "{}", largest(&a, &c));
     // None: no direction reaches the head.
-    let model = with(ViewDirection::None);
-    let a = rgb(
-        &model,
-        &posed,
-        &posed_points,
-        &posed_dirs,
-    );
-    let b = rgb(&model, &rest, &canonical, &dirs);
+    let (a, b) = pair(&with(ViewDirection::None));
     assert!(largest(&a, &b) < 1e-4, "{}", largest(&a, &b));
 }
 
