@@ -67,12 +67,13 @@ ROWS=()
 
 # run_variant <label> <split: novel-view|novel-pose|all> [--set key=value ...]: trains (both stages for
 # novel-pose and all) and evaluates one variant into $OUT/<label>, and remembers its summary for the table
-# (`all`: the training-view, novel-view and novel-pose splits, side by side).
+# (`all`: the training-view, novel-view and novel-pose splits, side by side). A variant run again replaces its
+# earlier run.
 run_variant() {
     local label="$1" split="$2"
     shift 2
     local run="$OUT/$label"
-    "$ANERF" train "$CONFIG" --quiet --out "$run" "$@"
+    "$ANERF" train "$CONFIG" --quiet --overwrite --out "$run" "$@"
     if [ "$split" != novel-view ]; then
         "$ANERF" animate "$run" --quiet
     fi

@@ -110,3 +110,11 @@ mod tests {
         assert_eq!(t.sum().into_scalar::<f32>(), 3.0);
     }
 }
+
+/// Physical memory of this machine in bytes (`MemTotal` of `/proc/meminfo`); `None` where unknown.
+pub fn host_memory_bytes() -> Option<u64> {
+    let text = std::fs::read_to_string("/proc/meminfo").ok()?;
+    let line = text.lines().find(|l| l.starts_with("MemTotal:"))?;
+    let kib: u64 = line.split_whitespace().nth(1)?.parse().ok()?;
+    Some(kib * 1024)
+}

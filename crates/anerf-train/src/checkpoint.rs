@@ -1,26 +1,29 @@
 //! Checkpoints: model, optimiser state, step and random state, written atomically (a temporary folder
 //! renamed into place, then a `latest` pointer replaced), so a crash or a full disk never damages the
-//! previous checkpoint.
+//! previous checkpoint. Each folder carries a manifest of its files' lengths and SHA-256 digests; a
+//! damaged checkpoint (truncated, altered, half-deleted) is reported and the newest intact one is used.
 
 use std::fs;
 use std::path::{Path, PathBuf};
 
 use anerf_core::model::{AnimatableNerf, ModelConfig, ModelSizes, OccupancyGrid};
 use anerf_data::RaySampler;
-use anyhow::{bail, Context, Result};
+use anyhow::{anyhow, bail, Context, Result};
 use burn::module::Module;
 use burn::optim::ModuleOptimizer;
 use burn::prelude::Device;
 use rand_chacha::ChaCha8Rng;
 use serde::{Deserialize, Serialize};
+use sha2::{Digest, Sha256};
 
 use crate::run_dir::write_atomic;
+use crate::stage::Stage;
+use crate::window::Window;
 
 /// Everything besides tensors that a resumed run needs.
 #[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct TrainerState {
-    /// 1 = radiance field and blend fields, 2 = novel-pose blend fields.
-    pub stage: u8,
+    pub stage: Stage,
     /// Steps completed.
     pub step: usize,
     pub model: ModelConfig,
@@ -35,6 +38,10 @@ pub struct TrainerState {
     /// The stage's early stop on a loss plateau (absent in checkpoints written before it existed).
     #[serde(default)]
     pub plateau: crate::schedule::Plateau,
+    /// The log window open at this step, so that a resumed run logs the means an uninterrupted one would
+    /// (absent in checkpoints written before it existed).
+    #[serde(default)]
+    pub window: Window,
 }
 
 impl TrainerState {
@@ -57,7 +64,7 @@ impl TrainerState {
 }
 
 /// A checkpoint folder `checkpoints/stage<k>-<step>`.
-#[derive(Debug, Clone)]
+#[derive(Debug, Clone, PartialEq, Eq)]
 pub struct Checkpoint {
     pub dir: PathBuf,
 }
@@ -67,18 +74,98 @@ const MODEL: &str = "model.bpk";
 const OCCUPANCY: &str = "occupancy.json";
 const OPTIM: &str = "optim.bpk";
 const STATE: &str = "state.json";
+/// Lengths and digests of the other files, written last.
+const MANIFEST: &str = "manifest.json";
 /// Checkpoints kept per stage (older ones are removed after a new one is in place).
 const KEEP: usize = 2;
 
+/// `manifest.json`: what each file of a checkpoint held when it was written.
+#[derive(Debug, Serialize, Deserialize)]
+struct Manifest {
+    files: Vec<FileRecord>,
+}
+
+#[derive(Debug, Serialize, Deserialize)]
+struct FileRecord {
+    name: String,
+    bytes: u64,
+    /// SHA-256 of the contents, lower-case hex.
+    sha256: String,
+}
+
+impl FileRecord {
+    fn of(dir: &Path, name: &str) -> Result<Self> {
+        let bytes = fs::read(dir.join(name))?;
+        Ok(Self {
+            name: name.into(),
+            bytes: bytes.len() as u64,
+            sha256: hex_digest(&bytes),
+        })
+    }
+
+    /// Fails, naming the file, when it is missing or differs from the record.
+    fn check(&self, dir: &Path) -> Result<()> {
+        let path = dir.join(&self.name);
+        let bytes = fs::read(&path).with_context(|| format!("reading {}", path.display()))?;
+        if bytes.len() as u64 != self.bytes {
+            bail!(
+                "{} has {} bytes, {} were written (truncated or replaced)",
+                path.display(),
+                bytes.len(),
+                self.bytes
+            );
+        }
+        if hex_digest(&bytes) != self.sha256 {
+            bail!(
+                "{} differs from what was written (its SHA-256 does not match the manifest)",
+                path.display()
+            );
+        }
+        Ok(())
+    }
+}
+
+fn hex_digest(bytes: &[u8]) -> String {
+    Sha256::digest(bytes)
+        .iter()
+        .map(|b| format!("{b:02x}"))
+        .collect()
+}
+
+/// A checkpoint read back whole: model, recorded state and (when asked for) the optimiser.
+pub struct Restored {
+    pub checkpoint: Checkpoint,
+    pub model: AnimatableNerf,
+    pub state: TrainerState,
+    pub optim: Option<ModuleOptimizer>,
+}
+
+/// Why one checkpoint could not be restored.
+enum Failure {
+    /// Its files are damaged: an older checkpoint may serve.
+    Damaged(anyhow::Error),
+    /// It is intact but does not fit the caller's config: older ones would not either.
+    Refused(anyhow::Error),
+}
+
+/// The step in a checkpoint folder's name `stage<k>-<step>`.
+fn step_of(name: &str, stage: Stage) -> Option<usize> {
+    name.strip_prefix(&format!("stage{}-", stage.number()))?
+        .parse()
+        .ok()
+}
+
 impl Checkpoint {
-    /// Writes a checkpoint of `stage` at `state.step` and points `latest` at it.
+    /// Writes a checkpoint of `state.stage` at `state.step`, points `latest` at it and removes older
+    /// checkpoints beyond the newest two, and any of a higher step (left by an abandoned or damaged
+    /// continuation).
     pub fn save(
         root: &Path,
         state: &TrainerState,
         model: &AnimatableNerf,
         optim: &ModuleOptimizer,
     ) -> Result<Checkpoint> {
-        let name = format!("stage{}-{:08}", state.stage, state.step);
+        let name = format!("stage{}-{:08}", state.stage.number(), state.step);
         let tmp = root.join(format!(".tmp-{name}"));
         let dir = root.join(&name);
         if tmp.exists() {
@@ -90,23 +177,33 @@ impl Checkpoint {
             model
                 .clone()
                 .save_file(tmp.join(MODEL))
-                .map_err(|e| anyhow::anyhow!("{e}"))?;
-            optim
-                .save(tmp.join(OPTIM))
-                .map_err(|e| anyhow::anyhow!("{e}"))?;
+                .map_err(|e| anyhow!("{e}"))?;
+            optim.save(tmp.join(OPTIM)).map_err(|e| anyhow!("{e}"))?;
             write_atomic(
                 &tmp.join(STATE),
                 serde_json::to_string_pretty(state)?.as_bytes(),
             )?;
+            let mut names = vec![MODEL, OPTIM, STATE];
             if let Some(grid) = model.occupancy() {
                 write_atomic(
                     &tmp.join(OCCUPANCY),
                     serde_json::to_string(grid)?.as_bytes(),
                 )?;
+                names.push(OCCUPANCY);
             }
             for f in [MODEL, OPTIM] {
                 fs::File::open(tmp.join(f))?.sync_all()?;
             }
+            let manifest = Manifest {
+                files: names
+                    .into_iter()
+                    .map(|n| FileRecord::of(&tmp, n))
+                    .collect::<Result<_>>()?,
+            };
+            write_atomic(
+                &tmp.join(MANIFEST),
+                serde_json::to_string_pretty(&manifest)?.as_bytes(),
+            )?;
             if dir.exists() {
                 fs::remove_dir_all(&dir)?;
             }
@@ -120,31 +217,120 @@ impl Checkpoint {
                 dir.display()
             )));
         }
-        write_atomic(
-            &root.join(format!("latest-stage{}", state.stage)),
-            name.as_bytes(),
-        )?;
-        prune(root, state.stage, &name)?;
+        write_atomic(&pointer(root, state.stage), name.as_bytes())?;
+        prune(root, state.stage, state.step)?;
         Ok(Checkpoint { dir })
     }
 
-    /// The newest complete checkpoint of `stage`, if any.
-    pub fn latest(root: &Path, stage: u8) -> Result<Option<Checkpoint>> {
-        let pointer = root.join(format!("latest-stage{stage}"));
-        if !pointer.is_file() {
+    /// Every checkpoint folder of `stage` under `root`, newest first: the one the `latest` pointer names
+    /// (when it exists), then the others by falling step. Nothing is read or checked.
+    pub fn candidates(root: &Path, stage: Stage) -> Result<Vec<Checkpoint>> {
+        if !root.is_dir() {
+            return Ok(Vec::new());
+        }
+        let mut steps: Vec<(usize, String)> = fs::read_dir(root)
+            .with_context(|| format!("listing {}", root.display()))?
+            .filter_map(|e| e.ok()?.file_name().into_string().ok())
+            .filter_map(|n| Some((step_of(&n, stage)?, n)))
+            .filter(|(_, n)| root.join(n).is_dir())
+            .collect();
+        steps.sort_unstable_by(|a, b| b.cmp(a));
+        let named = fs::read_to_string(pointer(root, stage))
+            .ok()
+            .map(|s| s.trim().to_string());
+        if let Some(i) = named
+            .as_ref()
+            .and_then(|n| steps.iter().position(|(_, s)| s == n))
+        {
+            let first = steps.remove(i);
+            steps.insert(0, first);
+        }
+        Ok(steps
+            .into_iter()
+            .map(|(_, n)| Checkpoint { dir: root.join(n) })
+            .collect())
+    }
+
+    /// The newest checkpoint folder of `stage` ([`Self::candidates`]' first), unchecked.
+    pub fn latest(root: &Path, stage: Stage) -> Result<Option<Checkpoint>> {
+        Ok(Self::candidates(root, stage)?.into_iter().next())
+    }
+
+    /// Restores the newest intact checkpoint of `stage`: each damaged one is named on stderr with what is
+    /// wrong and the next older one is tried. `optimizer` builds the optimiser to load the saved state into
+    /// (none: the model alone). `Ok(None)` when the stage has no checkpoint; an error when every one is
+    /// damaged or the newest intact one was trained with another model config than `expected`.
+    pub fn restore_newest(
+        root: &Path,
+        stage: Stage,
+        expected: &ModelConfig,
+        device: &Device,
+        optimizer: Option<&dyn Fn() -> ModuleOptimizer>,
+    ) -> Result<Option<Restored>> {
+        let candidates = Self::candidates(root, stage)?;
+        if candidates.is_empty() {
             return Ok(None);
         }
-        let name = fs::read_to_string(&pointer)
-            .with_context(|| format!("reading {}", pointer.display()))?;
-        let dir = root.join(name.trim());
-        if !dir.join(STATE).is_file() {
-            bail!(
-                "{} points at {}, which is not a complete checkpoint",
-                pointer.display(),
-                dir.display()
-            );
+        let mut damaged = Vec::new();
+        for ck in candidates {
+            match ck.restore(expected, device, optimizer) {
+                Ok(restored) => {
+                    if !damaged.is_empty() {
+                        eprintln!(
+                            "warning: using {}, the newest intact {stage} checkpoint",
+                            ck.dir.display()
+                        );
+                    }
+                    return Ok(Some(restored));
+                }
+                Err(Failure::Refused(e)) => return Err(e),
+                Err(Failure::Damaged(e)) => {
+                    eprintln!("warning: checkpoint {} is damaged: {e:#}", ck.dir.display());
+                    damaged.push(format!("{}: {e:#}", ck.dir.display()));
+                }
+            }
         }
-        Ok(Some(Checkpoint { dir }))
+        bail!(
+            "every {stage} checkpoint in {} is damaged:\n  {}",
+            root.display(),
+            damaged.join("\n  ")
+        )
+    }
+
+    /// Reads this checkpoint whole, telling damage from a config that does not fit.
+    fn restore(
+        &self,
+        expected: &ModelConfig,
+        device: &Device,
+        optimizer: Option<&dyn Fn() -> ModuleOptimizer>,
+    ) -> Result<Restored, Failure> {
+        self.verify().map_err(Failure::Damaged)?;
+        let state = self.state().map_err(Failure::Damaged)?;
+        check_model_config(self, &state, expected).map_err(Failure::Refused)?;
+        let model = self.read_model(&state, device).map_err(Failure::Damaged)?;
+        let optim = optimizer
+            .map(|build| self.load_optimizer(build()))
+            .transpose()
+            .map_err(Failure::Damaged)?;
+        Ok(Restored {
+            checkpoint: self.clone(),
+            model,
+            state,
+            optim,
+        })
+    }
+
+    /// Checks every file against the manifest (checkpoints written before manifests existed pass).
+    pub fn verify(&self) -> Result<()> {
+        let path = self.dir.join(MANIFEST);
+        if !path.exists() {
+            return Ok(());
+        }
+        let text =
+            fs::read_to_string(&path).with_context(|| format!("reading {}", path.display()))?;
+        let manifest: Manifest = serde_json::from_str(&text)
+            .with_context(|| format!("{} is not a checkpoint manifest", path.display()))?;
+        manifest.files.iter().try_for_each(|f| f.check(&self.dir))
     }
 
     /// The recorded state.
@@ -156,27 +342,26 @@ impl Checkpoint {
             .with_context(|| format!("{} is not a checkpoint state", path.display()))
     }
 
-    /// The model, checked against the config the caller expects.
+    /// The model, checked against the config the caller expects (no integrity check beyond what loading
+    /// does: [`Self::restore_newest`] is the checked path).
     pub fn load_model(
         &self,
         expected: &ModelConfig,
         device: &Device,
     ) -> Result<(AnimatableNerf, TrainerState)> {
         let state = self.state()?;
-        if &state.model != expected {
-            bail!(
-                "checkpoint {} was trained with another model config ({}); expected {}",
-                self.dir.display(),
-                serde_json::to_string(&state.model)?,
-                serde_json::to_string(expected)?
-            );
-        }
+        check_model_config(self, &state, expected)?;
+        Ok((self.read_model(&state, device)?, state))
+    }
+
+    fn read_model(&self, state: &TrainerState, device: &Device) -> Result<AnimatableNerf> {
+        let path = self.dir.join(MODEL);
         let mut model = state
             .empty_model(device)
-            .try_load_file(self.dir.join(MODEL))
-            .map_err(|e| anyhow::anyhow!("loading {}: {e}", self.dir.join(MODEL).display()))?;
+            .try_load_file(&path)
+            .map_err(|e| anyhow!("loading {}: {e}", path.display()))?;
         model.set_occupancy(self.occupancy()?);
-        Ok((model, state))
+        Ok(model)
     }
 
     /// The occupancy grid saved with the model, if it had one.
@@ -190,28 +375,65 @@ impl Checkpoint {
         let grid: OccupancyGrid = serde_json::from_str(&text)
             .with_context(|| format!("{} is not an occupancy grid", path.display()))?;
         grid.validate()
-            .map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
+            .map_err(|e| anyhow!("{}: {e}", path.display()))?;
         Ok(Some(grid))
     }
 
     /// The optimiser state into `optim`.
     pub fn load_optimizer(&self, optim: ModuleOptimizer) -> Result<ModuleOptimizer> {
+        let path = self.dir.join(OPTIM);
         optim
-            .load(self.dir.join(OPTIM))
-            .map_err(|e| anyhow::anyhow!("loading {}: {e}", self.dir.join(OPTIM).display()))
+            .load(&path)
+            .map_err(|e| anyhow!("loading {}: {e}", path.display()))
+    }
+
+    /// Removes every checkpoint of `stage` and its pointer (to fit the stage again from scratch).
+    pub fn remove_stage(root: &Path, stage: Stage) -> Result<()> {
+        for ck in Self::candidates(root, stage)? {
+            fs::remove_dir_all(&ck.dir)
+                .with_context(|| format!("removing {}", ck.dir.display()))?;
+        }
+        let p = pointer(root, stage);
+        if p.exists() {
+            fs::remove_file(&p).with_context(|| format!("removing {}", p.display()))?;
+        }
+        Ok(())
     }
 }
 
-fn prune(root: &Path, stage: u8, keep_name: &str) -> Result<()> {
-    let prefix = format!("stage{stage}-");
-    let mut names: Vec<String> = fs::read_dir(root)?
-        .filter_map(|e| e.ok()?.file_name().into_string().ok())
-        .filter(|n| n.starts_with(&prefix))
-        .collect();
-    names.sort();
-    let excess = names.len().saturating_sub(KEEP);
-    for n in names.into_iter().take(excess).filter(|n| n != keep_name) {
-        fs::remove_dir_all(root.join(n))?;
+fn check_model_config(ck: &Checkpoint, state: &TrainerState, expected: &ModelConfig) -> Result<()> {
+    if &state.model != expected {
+        bail!(
+            "checkpoint {} was trained with another model config ({}); expected {}",
+            ck.dir.display(),
+            serde_json::to_string(&state.model)?,
+            serde_json::to_string(expected)?
+        );
+    }
+    Ok(())
+}
+
+/// The file naming the newest checkpoint of `stage`.
+fn pointer(root: &Path, stage: Stage) -> PathBuf {
+    root.join(format!("latest-stage{}", stage.number()))
+}
+
+/// Keeps the checkpoint at `step` and the `KEEP − 1` newest below it; removes the rest of `stage`'s,
+/// including any above `step`.
+fn prune(root: &Path, stage: Stage, step: usize) -> Result<()> {
+    let mut older = 0;
+    for ck in Checkpoint::candidates(root, stage)? {
+        let name = ck.dir.file_name().and_then(|n| n.to_str()).unwrap_or("");
+        let s = step_of(name, stage).unwrap_or(usize::MAX);
+        let keep = s == step
+            || (s < step && {
+                older += 1;
+                older < KEEP
+            });
+        if !keep {
+            fs::remove_dir_all(&ck.dir)
+                .with_context(|| format!("removing old checkpoint {}", ck.dir.display()))?;
+        }
     }
     Ok(())
 }

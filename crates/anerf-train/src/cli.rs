@@ -88,9 +88,13 @@ pub struct TrainArgs {
     /// Run folder (default runs/<name>).
     #[arg(long)]
     pub out: Option<PathBuf>,
-    /// Continue from the run's latest checkpoint.
-    #[arg(long)]
+    /// Continue from the run's newest intact checkpoint.
+    #[arg(long, conflicts_with = "overwrite")]
     pub resume: bool,
+    /// Replace an existing run in the output folder (deleted whole once the new run's config and data
+    /// have been checked).
+    #[arg(long)]
+    pub overwrite: bool,
     /// Stop (with a checkpoint) after this many steps; `--resume` continues.
     #[arg(long)]
     pub steps: Option<usize>,
@@ -102,9 +106,12 @@ pub struct TrainArgs {
 pub struct RunArgs {
     /// A run folder written by `anerf train`.
     pub run: PathBuf,
-    /// Continue stage 2 from its latest checkpoint.
-    #[arg(long)]
+    /// Continue stage 2 from its newest intact checkpoint.
+    #[arg(long, conflicts_with = "overwrite")]
     pub resume: bool,
+    /// Fit stage 2 again, replacing its earlier checkpoints.
+    #[arg(long)]
+    pub overwrite: bool,
     /// Stop (with a checkpoint) after this many steps; `--resume` continues.
     #[arg(long)]
     pub steps: Option<usize>,
@@ -215,6 +222,23 @@ pub struct DemoArgs {
     pub common: Common,
 }
 
+/// An error and its causes on one line, as `anyhow`'s `{:#}` writes them, leaving out each cause whose
+/// text the line already holds (errors that print their source and also return it from `source()`).
+pub fn error_chain(error: &anyhow::Error) -> String {
+    let mut line = String::new();
+    for cause in error.chain() {
+        let text = cause.to_string();
+        if line.contains(&text) {
+            continue;
+        }
+        if !line.is_empty() {
+            line.push_str(": ");
+        }
+        line.push_str(&text);
+    }
+    line
+}
+
 /// Installs the Ctrl-C handler once; the flag it sets makes the training loops checkpoint and stop.
 pub fn interrupt_flag() -> Arc<AtomicBool> {
     let flag = Arc::new(AtomicBool::new(false));
@@ -226,4 +250,25 @@ pub fn interrupt_flag() -> Arc<AtomicBool> {
         eprintln!("warning: cannot install the Ctrl-C handler ({e}); an interrupt will not write a checkpoint");
     }
     flag
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn an_error_chain_says_each_cause_once() {
+        // `ConfigError::Read` prints its io::Error and returns it as its source: `{:#}` says it twice.
+        let io = std::io::Error::new(std::io::ErrorKind::NotFound, "no such file");
+        let e = anyhow::Error::new(crate::config::ConfigError::Read {
+            path: "a.toml".into(),
+            source: io,
+        })
+        .context("loading the experiment");
+        assert_eq!(format!("{e:#}").matches("no such file").count(), 2);
+        assert_eq!(
+            error_chain(&e),
+            "loading the experiment: cannot read config a.toml: no such file"
+        );
+    }
 }

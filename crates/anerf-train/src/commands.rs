@@ -18,8 +18,11 @@ use crate::checkpoint::Checkpoint;
 use crate::cli::Common;
 use crate::config::{self, ExperimentConfig, FrameRange};
 use crate::experiment::Experiment;
+use crate::memory::{self, Work};
 use crate::render::{render_shot, render_view, Shot};
 use crate::run_dir::RunDir;
+use crate::run_start::{self, RunStart};
+use crate::stage::Stage;
 use crate::train::{train_stage1, train_stage2, StageOutcome, TrainOptions};
 
 /// The device named by `--device`, else by the config.
@@ -50,7 +53,13 @@ pub fn load_config(path: &Path, common: &Common) -> Result<ExperimentConfig> {
 }
 
 fn load_config_with(path: &Path, overrides: &[String]) -> Result<ExperimentConfig> {
-    config::load(path, overrides).with_context(|| format!("in config {}", path.display()))
+    config::load(path, overrides).map_err(|e| match e {
+        // These name the file already.
+        config::ConfigError::Read { .. }
+        | config::ConfigError::Parse { .. }
+        | config::ConfigError::BaseCycle { .. } => e.into(),
+        _ => anyhow::Error::new(e).context(format!("in config {}", path.display())),
+    })
 }
 
 /// The config of `anerf train`: the file (or `--data` folder), then the flags, then `--set`.
@@ -193,67 +202,97 @@ fn span(frames: &[usize]) -> String {
     }
 }
 
-/// `anerf train`: stage 1 into `run`.
+/// `anerf train`: stage 1 into `run`. The start is checked (`start`), the config validated and the data
+/// opened before the folder is touched; a start that fails before its first checkpoint removes what it made.
 pub fn train(
-    config: ExperimentConfig,
+    mut config: ExperimentConfig,
     run: &Path,
     common: &Common,
-    resume: bool,
+    start: RunStart,
     max_steps: Option<usize>,
     stop: &AtomicBool,
 ) -> Result<StageOutcome> {
-    let device = device(&config, common)?.autodiff();
-    let run = RunDir::create(run)?;
-    if resume {
-        let saved = run.read_config()?;
+    run_start::check_stage1(run, start)?;
+    if start == RunStart::Resume {
+        let saved = RunDir::open(run)?.read_config()?;
         if saved.model != config.model {
             bail!(
                 "--resume: the config's [model] differs from the run's {}",
-                run.config_path().display()
+                RunDir::open(run)?.config_path().display()
             );
         }
     }
-    run.write_config(&config)?;
+    config.dataset.make_paths_absolute()?;
+    memory::check(&config, Work::Train)?;
+    let device = device(&config, common)?.autodiff();
     let mut exp = Experiment::open(config, device, !common.quiet)?;
-    let outcome = train_stage1(
-        &mut exp,
-        &run,
-        TrainOptions {
-            resume,
-            progress: !common.quiet,
-            max_steps,
-        },
-        stop,
-    )?;
+    let run = run_start::begin_stage1(run, start)?;
+    let result = run.write_config(&exp.config).and_then(|()| {
+        train_stage1(
+            &mut exp,
+            &run,
+            stage_options(start, common, max_steps),
+            stop,
+        )
+    });
+    let outcome = match result {
+        Ok(o) => o,
+        Err(e) => {
+            if start != RunStart::Resume
+                && Checkpoint::latest(&run.checkpoints(), Stage::Train)
+                    .ok()
+                    .flatten()
+                    .is_none()
+            {
+                // Nothing worth keeping was made: leave no half-made run behind.
+                let _ = std::fs::remove_dir_all(&run.root);
+            }
+            return Err(e);
+        }
+    };
     report_outcome("stage 1", &outcome, &run);
     Ok(outcome)
 }
 
-/// `anerf animate`: stage 2 of a run.
+/// `anerf animate`: stage 2 of a run (`start` as for [`train`], over stage 2's checkpoints).
 pub fn animate(
     run: &Path,
     common: &Common,
-    resume: bool,
+    start: RunStart,
     max_steps: Option<usize>,
     stop: &AtomicBool,
 ) -> Result<StageOutcome> {
-    let run = RunDir::open(run)?;
-    let mut config = run.read_config()?;
-    apply_overrides(&mut config, common)?;
+    let (run, config) = open_run(run, common, Work::Animate)?;
+    run_start::check_stage2(&run, start)?;
     let device = device(&config, common)?.autodiff();
     let mut exp = Experiment::open(config, device, !common.quiet)?;
+    run_start::begin_stage2(&run, start)?;
     let outcome = train_stage2(
         &mut exp,
         &run,
-        TrainOptions {
-            resume,
-            progress: !common.quiet,
-            max_steps,
-        },
+        stage_options(start, common, max_steps),
         stop,
     )?;
     report_outcome("stage 2", &outcome, &run);
     Ok(outcome)
+}
+
+fn stage_options(start: RunStart, common: &Common, max_steps: Option<usize>) -> TrainOptions {
+    TrainOptions {
+        resume: start == RunStart::Resume,
+        progress: !common.quiet,
+        max_steps,
+    }
+}
+
+/// Opens a run folder and its config with the command's `--set` overrides, and checks that a step of
+/// `work` fits in memory.
+fn open_run(path: &Path, common: &Common, work: Work) -> Result<(RunDir, ExperimentConfig)> {
+    let run = RunDir::open(path)?;
+    let mut config = run.read_config()?;
+    apply_overrides(&mut config, common)?;
+    memory::check(&config, work)?;
+    Ok((run, config))
 }
 
 fn apply_overrides(config: &mut ExperimentConfig, common: &Common) -> Result<()> {
@@ -283,30 +322,29 @@ fn report_outcome(stage: &str, o: &StageOutcome, run: &RunDir) {
     );
 }
 
-/// The run's newest model: stage 2 if it exists, else stage 1.
+/// The run's newest intact model: stage 2 if it has one, else stage 1.
 pub fn load_trained(
     run: &RunDir,
     config: &ExperimentConfig,
     device: &Device,
 ) -> Result<AnimatableNerf> {
-    let ck = match Checkpoint::latest(&run.checkpoints(), 2)? {
-        Some(ck) => ck,
-        None => Checkpoint::latest(&run.checkpoints(), 1)?.with_context(|| {
-            format!(
-                "{} has no checkpoint; run `anerf train` first",
-                run.root.display()
-            )
-        })?,
-    };
-    Ok(ck.load_model(&config.model, device)?.0)
+    for stage in [Stage::Animate, Stage::Train] {
+        if let Some(r) =
+            Checkpoint::restore_newest(&run.checkpoints(), stage, &config.model, device, None)?
+        {
+            return Ok(r.model);
+        }
+    }
+    bail!(
+        "{} has no checkpoint; run `anerf train` first",
+        run.root.display()
+    )
 }
 
 /// `anerf eval`: renders every test view of every `eval.frame_interval`-th frame of the split and writes
 /// `<run>/eval/<split>/` (per-image metrics, images, summary).
 pub fn eval(run_path: &Path, split: EvalSplit, common: &Common) -> Result<Summary> {
-    let run = RunDir::open(run_path)?;
-    let mut config = run.read_config()?;
-    apply_overrides(&mut config, common)?;
+    let (run, config) = open_run(run_path, common, Work::Render)?;
     let device = device(&config, common)?;
     let model = load_trained(&run, &config, &device)?;
     let mut exp = Experiment::open(config, device, !common.quiet)?;
@@ -376,6 +414,13 @@ pub fn compare(pred: &Path, gt: &Path, mask: Option<&Path>) -> Result<()> {
 pub fn info(path: &Path) -> Result<bool> {
     let (root, options) = if path.extension().is_some_and(|e| e == "toml") {
         let d = config::load(path, &[])?.dataset;
+        if !d.root.is_dir() {
+            bail!(
+                "dataset.root = {} in {} is not a folder (expected the subject folder)",
+                d.root.display(),
+                path.display()
+            );
+        }
         let load = anerf_data::LoadOptions {
             body_model: d.body_model,
         };
@@ -386,6 +431,11 @@ pub fn info(path: &Path) -> Result<bool> {
                 load,
             },
         )
+    } else if path.is_file() {
+        bail!(
+            "{} is a file; expected a subject folder or an experiment config (.toml)",
+            path.display()
+        );
     } else {
         (path.to_path_buf(), Default::default())
     };
@@ -454,9 +504,7 @@ fn image_bar(n: usize, common: &Common) -> indicatif::ProgressBar {
 /// `anerf render`: PNG frames, an animated GIF and (with ffmpeg on PATH) an MP4 under `<run>/renders/`.
 /// Returns the GIF's path.
 pub fn render(run_path: &Path, job: RenderJob, common: &Common) -> Result<PathBuf> {
-    let run = RunDir::open(run_path)?;
-    let mut config = run.read_config()?;
-    apply_overrides(&mut config, common)?;
+    let (run, config) = open_run(run_path, common, Work::Render)?;
     let device = device(&config, common)?;
     // Pose files need their blend-weight codes fitted first, which takes gradients.
     let device = match job {
@@ -656,15 +704,24 @@ pub fn demo(
     let run = out.join("run");
     let mut times = Vec::new();
 
-    let resume = Checkpoint::latest(&run.join("checkpoints"), 1)?.is_some();
+    // The demo owns its run folder: it continues what is there, or starts it again.
+    let continue_or_replace = |stage| -> Result<RunStart> {
+        Ok(
+            match Checkpoint::latest(&run.join("checkpoints"), stage)?.is_some() {
+                true => RunStart::Resume,
+                false => RunStart::Overwrite,
+            },
+        )
+    };
     let t = std::time::Instant::now();
-    if train(config, &run, common, resume, None, stop)?.interrupted {
+    let start = continue_or_replace(Stage::Train)?;
+    if train(config, &run, common, start, None, stop)?.interrupted {
         return Ok(());
     }
     times.push(("stage 1 (train)", t.elapsed()));
-    let resume = Checkpoint::latest(&run.join("checkpoints"), 2)?.is_some();
+    let start = continue_or_replace(Stage::Animate)?;
     let t = std::time::Instant::now();
-    if animate(&run, common, resume, None, stop)?.interrupted {
+    if animate(&run, common, start, None, stop)?.interrupted {
         return Ok(());
     }
     times.push(("stage 2 (animate)", t.elapsed()));
@@ -713,9 +770,7 @@ pub fn demo(
 /// copies under `<run>/meshes/`.
 pub fn mesh(run_path: &Path, job: &crate::mesh::MeshJob, common: &Common) -> Result<PathBuf> {
     use anerf_eval::mesh_io::{write_obj, write_ply, MeshView, VertexAttribute};
-    let run = RunDir::open(run_path)?;
-    let mut config = run.read_config()?;
-    apply_overrides(&mut config, common)?;
+    let (run, config) = open_run(run_path, common, Work::Render)?;
     if !(job.voxel.is_finite() && job.voxel > 0.0) {
         bail!("--voxel {}: expected a positive size in metres", job.voxel);
     }

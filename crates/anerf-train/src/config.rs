@@ -137,6 +137,16 @@ pub enum RangeSet {
     Tpami,
 }
 
+impl RangeSet {
+    /// The set's key in `[dataset]` (`iccv`, `tpami`).
+    pub fn key(self) -> &'static str {
+        match self {
+            RangeSet::Iccv => "iccv",
+            RangeSet::Tpami => "tpami",
+        }
+    }
+}
+
 /// Training and novel-pose frames of one range set.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -199,6 +209,25 @@ fn default_cache() -> PathBuf {
 }
 
 impl DatasetConfig {
+    /// Resolves `root`, `cache` and `body_model` against the working directory, as written into a run's
+    /// config, so that the run can be evaluated from any folder.
+    pub fn make_paths_absolute(&mut self) -> Result<(), ConfigError> {
+        let absolute = |key: &str, p: &Path| {
+            std::path::absolute(p).map_err(|e| {
+                ConfigError::Invalid(format!(
+                    "dataset.{key}: cannot resolve {}: {e}",
+                    p.display()
+                ))
+            })
+        };
+        self.root = absolute("root", &self.root)?;
+        self.cache = absolute("cache", &self.cache)?;
+        if let Some(b) = &self.body_model {
+            self.body_model = Some(absolute("body_model", b)?);
+        }
+        Ok(())
+    }
+
     /// The frame split selected by `ranges`.
     pub fn split(&self) -> &FrameSplit {
         match (self.ranges, &self.tpami) {
@@ -614,6 +643,22 @@ pub fn validate(c: &ExperimentConfig) -> Result<(), ConfigError> {
                     format!("{} holds no frame", s.train_frames),
                 );
             }
+            let train = s.train_frames.frames();
+            if let Some(f) = s
+                .novel_pose_frames
+                .frames()
+                .into_iter()
+                .find(|f| train.binary_search(f).is_ok())
+            {
+                return bad(
+                    &format!("{name}.novel_pose_frames"),
+                    format!(
+                        "{} shares frame {f} with {name}.train_frames = {} (novel poses must be frames the \
+                         model was not trained on)",
+                        s.novel_pose_frames, s.train_frames
+                    ),
+                );
+            }
         }
     }
     if d.ranges == RangeSet::Tpami && d.tpami.is_none() {
@@ -623,17 +668,25 @@ pub fn validate(c: &ExperimentConfig) -> Result<(), ConfigError> {
         );
     }
     for (name, s) in [("train", &c.train), ("animate", &c.animate)] {
+        if s.iterations == 0 {
+            return bad(
+                &format!("{name}.iterations"),
+                "0 (expected at least one step)".into(),
+            );
+        }
         if s.batch == 0 {
             return bad(
                 &format!("{name}.batch"),
                 "0 (expected a positive integer)".into(),
             );
         }
-        if !(s.lr > 0.0 && s.lr_final > 0.0 && s.lr.is_finite() && s.lr_final.is_finite()) {
-            return bad(
-                &format!("{name}.lr"),
-                format!("{} → {} (expected positive rates)", s.lr, s.lr_final),
-            );
+        for (key, rate) in [("lr", s.lr), ("lr_final", s.lr_final)] {
+            if !(rate.is_finite() && rate > 0.0) {
+                return bad(
+                    &format!("{name}.{key}"),
+                    format!("{rate} (expected a positive, finite rate)"),
+                );
+            }
         }
         if s.grad_clip.is_nan() || s.grad_clip < 0.0 {
             return bad(

@@ -89,12 +89,38 @@ impl Experiment {
             );
         }
         let split = d.split();
+        let key = |what: &str| format!("dataset.{}.{what}", d.ranges.key());
+        if split.train_frames.end > available {
+            bail!(
+                "{} = {} reaches frame {}, but {} has {available} frames (0:{available})",
+                key("train_frames"),
+                split.train_frames,
+                split.train_frames.end - 1,
+                d.root.display()
+            );
+        }
         let train_frames = frames_of(&split.train_frames, d.frame_interval, available);
         let novel_frames = frames_of(&split.novel_pose_frames, d.frame_interval, available);
+        let novel = &split.novel_pose_frames;
+        if !novel.is_empty() && novel_frames.is_empty() {
+            bail!(
+                "{} = {novel} selects none of the {available} frames of {} (frames 0:{available})",
+                key("novel_pose_frames"),
+                d.root.display()
+            );
+        }
+        if novel.end > available && progress {
+            // The published configs name ranges past the end of shorter sequences (the authors' code clips).
+            eprintln!(
+                "note: {} = {novel} is clipped to the {available} frames of {}",
+                key("novel_pose_frames"),
+                d.root.display()
+            );
+        }
         if train_frames.is_empty() {
             bail!(
-                "dataset.{:?}.train_frames = {} selects none of the {available} frames of {}",
-                d.ranges,
+                "{} = {} selects none of the {available} frames of {}",
+                key("train_frames"),
                 split.train_frames,
                 d.root.display()
             );

@@ -2,8 +2,9 @@
 
 use std::process::ExitCode;
 
-use anerf_train::cli::{interrupt_flag, Cli, Command};
+use anerf_train::cli::{error_chain, interrupt_flag, Cli, Command};
 use anerf_train::commands;
+use anerf_train::run_start::RunStart;
 use clap::Parser;
 
 /// Large freed blocks are kept for reuse: Burn allocates every intermediate tensor anew (see
@@ -22,7 +23,7 @@ fn main() -> ExitCode {
     match anerf_core::device::threads::on_pool(|| run(cli)) {
         Ok(code) => code,
         Err(e) => {
-            eprintln!("error: {e:#}");
+            eprintln!("error: {}", error_chain(&e));
             ExitCode::FAILURE
         }
     }
@@ -49,7 +50,7 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
                 config,
                 &run,
                 &a.common,
-                a.resume,
+                RunStart::from_flags(a.resume, a.overwrite),
                 a.steps,
                 &interrupt_flag(),
             )?;
@@ -58,8 +59,8 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
             }
         }
         Command::Animate(a) => {
-            if commands::animate(&a.run, &a.common, a.resume, a.steps, &interrupt_flag())?
-                .interrupted
+            let start = RunStart::from_flags(a.resume, a.overwrite);
+            if commands::animate(&a.run, &a.common, start, a.steps, &interrupt_flag())?.interrupted
             {
                 return Ok(ExitCode::from(130));
             }

@@ -8,6 +8,7 @@ use anyhow::{Context, Result};
 use serde::Serialize;
 
 use crate::config::{self, ExperimentConfig};
+use crate::stage::Stage;
 
 /// Paths inside `runs/<experiment>/`.
 #[derive(Debug, Clone)]
@@ -25,12 +26,17 @@ impl RunDir {
         })
     }
 
+    /// True when `root` holds a run's `config.toml`.
+    pub fn looks_like_run(root: &Path) -> bool {
+        root.join("config.toml").is_file()
+    }
+
     /// Opens an existing run folder (one holding `config.toml`).
     pub fn open(root: &Path) -> Result<Self> {
         let dir = Self {
             root: root.to_path_buf(),
         };
-        if !dir.config_path().is_file() {
+        if !Self::looks_like_run(root) {
             anyhow::bail!("{} is not a run folder: it has no config.toml (expected the output of `anerf train`)", root.display());
         }
         Ok(dir)
@@ -81,43 +87,66 @@ pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<()> {
         .with_context(|| format!("writing {}", path.display()))
 }
 
-/// Appends JSON lines to `metrics.jsonl`.
+/// Appends JSON lines to `metrics.jsonl`, each line whole.
 pub struct MetricsLog {
     path: PathBuf,
 }
 
 impl MetricsLog {
-    /// Opens the log; when resuming from `step`, drops lines of the same stage written after it so that the
-    /// log reads as if the run had never stopped.
-    pub fn open(path: PathBuf, stage: u8, resume_step: Option<usize>) -> Result<Self> {
-        if let (Some(step), true) = (resume_step, path.is_file()) {
+    /// Opens the log of a stage that starts (or resumes) at `step`: drops lines of the same stage written
+    /// after it, so that the log reads as if the run had never stopped, and any line a fault left half
+    /// written or unreadable (named on stderr).
+    pub fn open(path: PathBuf, stage: Stage, step: usize) -> Result<Self> {
+        if path.is_file() {
             let text =
                 fs::read_to_string(&path).with_context(|| format!("reading {}", path.display()))?;
-            let kept: Vec<&str> = text
-                .lines()
-                .filter(|line| {
-                    let v: serde_json::Value = serde_json::from_str(line).unwrap_or_default();
-                    let same_stage = v["stage"].as_u64() == Some(stage as u64);
-                    !(same_stage && v["step"].as_u64().is_some_and(|s| s as usize > step))
-                })
-                .collect();
-            let mut out = kept.join("\n");
-            if !out.is_empty() {
-                out.push('\n');
+            let mut kept = String::with_capacity(text.len());
+            let mut broken = 0;
+            for line in text.split_inclusive('\n') {
+                let record = line
+                    .strip_suffix('\n')
+                    .and_then(|l| serde_json::from_str::<serde_json::Value>(l).ok());
+                let Some(v) = record else {
+                    broken += 1;
+                    continue;
+                };
+                let later = v["stage"].as_u64() == Some(stage.number() as u64)
+                    && v["step"].as_u64().is_some_and(|s| s as usize > step);
+                if !later {
+                    kept.push_str(line);
+                }
             }
-            write_atomic(&path, out.as_bytes())?;
+            if broken > 0 {
+                eprintln!(
+                    "warning: {}: dropped {broken} half-written or unreadable line(s)",
+                    path.display()
+                );
+            }
+            if kept.len() != text.len() {
+                write_atomic(&path, kept.as_bytes())?;
+            }
         }
         Ok(Self { path })
     }
 
-    /// Appends one record.
+    /// Appends one record as a single write; when that write fails (a full disk) the file is cut back to
+    /// its previous length, so no partial line stays behind.
     pub fn append(&self, record: &impl Serialize) -> Result<()> {
         let mut f = fs::OpenOptions::new()
             .create(true)
             .append(true)
             .open(&self.path)
             .with_context(|| format!("opening {}", self.path.display()))?;
-        let line = serde_json::to_string(record)?;
-        writeln!(f, "{line}").with_context(|| format!("appending to {}", self.path.display()))
+        let before = f
+            .metadata()
+            .with_context(|| format!("reading the length of {}", self.path.display()))?
+            .len();
+        let mut line = serde_json::to_string(record)?;
+        line.push('\n');
+        if let Err(e) = f.write_all(line.as_bytes()) {
+            let _ = f.set_len(before);
+            return Err(e).with_context(|| format!("appending to {}", self.path.display()));
+        }
+        Ok(())
     }
 }

@@ -28,6 +28,8 @@ use crate::progress::StageProgress;
 use crate::render::render_view;
 use crate::run_dir::{MetricsLog, RunDir};
 use crate::schedule::{learning_rate, Plateau};
+use crate::stage::Stage;
+use crate::window::StepValues;
 
 /// How a stage runs.
 #[derive(Debug, Clone, Copy)]
@@ -55,7 +57,7 @@ pub struct StageOutcome {
 /// One line of `metrics.jsonl`.
 #[derive(Debug, Serialize)]
 struct LogLine {
-    stage: u8,
+    stage: Stage,
     step: usize,
     loss: f32,
     #[serde(skip_serializing_if = "Option::is_none")]
@@ -83,50 +85,6 @@ fn optimizer(stage: &StageConfig) -> ModuleOptimizer {
         .init()
 }
 
-/// Running means of the logged quantities between two log lines.
-#[derive(Default)]
-struct Window {
-    steps: usize,
-    loss: f64,
-    mse: f64,
-    blend: f64,
-    surviving: f64,
-    occupied: f64,
-    items: usize,
-    started: Option<Instant>,
-}
-
-impl Window {
-    fn add(
-        &mut self,
-        loss: f32,
-        mse: f32,
-        blend: f32,
-        surviving: f32,
-        occupied: f32,
-        items: usize,
-    ) {
-        self.started.get_or_insert_with(Instant::now);
-        self.steps += 1;
-        self.loss += loss as f64;
-        self.mse += mse as f64;
-        self.blend += blend as f64;
-        self.surviving += surviving as f64;
-        self.occupied += occupied as f64;
-        self.items += items;
-    }
-
-    fn mean(&self, v: f64) -> f32 {
-        (v / self.steps.max(1) as f64) as f32
-    }
-
-    fn rate(&self) -> f64 {
-        self.started.map_or(0.0, |t| {
-            self.items as f64 / t.elapsed().as_secs_f64().max(1e-9)
-        })
-    }
-}
-
 /// Uniform numbers in `[0, 1)` as an `[rows, cols]` tensor, from the trainer's own stream.
 fn uniform(rng: &mut ChaCha8Rng, rows: usize, cols: usize, device: &Device) -> Tensor<2> {
     let values: Vec<f32> = (0..rows * cols).map(|_| rng.random::<f32>()).collect();
@@ -140,10 +98,10 @@ fn uniform_in_box(rng: &mut ChaCha8Rng, min: Vec3, max: Vec3, n: usize) -> Vec<V
         .collect()
 }
 
-fn check_finite(loss: f32, stage: u8, step: usize, run: &RunDir) -> Result<()> {
+fn check_finite(loss: f32, stage: Stage, step: usize, run: &RunDir) -> Result<()> {
     if !loss.is_finite() {
         bail!(
-            "stage {stage} stopped at step {step}: the loss is {loss}; the last good checkpoint in {} is kept \
+            "{stage} stopped at step {step}: the loss is {loss}; the last good checkpoint in {} is kept \
              (lower the learning rate or check the data, then `--resume`)",
             run.checkpoints().display()
         );
@@ -162,45 +120,60 @@ pub fn train_stage1(
     let cfg = exp.config.train.clone();
     let model_cfg = exp.config.model.clone();
     let device = exp.device.clone();
-    let (mut model, mut optim, mut state) =
-        match (options.resume, Checkpoint::latest(&run.checkpoints(), 1)?) {
-            (true, Some(ck)) => {
-                let (model, state) = ck.load_model(&model_cfg, &device)?;
-                check_sizes(&state, exp)?;
-                (model, ck.load_optimizer(optimizer(&cfg))?, state)
-            }
-            _ => {
-                device.seed(exp.config.seed);
-                let sampler = RaySampler::new(
-                    exp.config.seed,
-                    SamplerOptions {
-                        rays: cfg.batch,
-                        skip_mask_edges: cfg.skip_mask_edges,
-                        ..SamplerOptions::default()
-                    },
-                );
-                let state = TrainerState {
-                    stage: 1,
-                    step: 0,
-                    model: model_cfg.clone(),
-                    training_frames: exp.train_frames.len(),
-                    joints: exp.prepared.skeleton.num_joints(),
-                    novel_frames: None,
-                    sampler: Some(sampler),
-                    rng: ChaCha8Rng::seed_from_u64(exp.config.seed ^ 0x5eed_0001),
-                    plateau: Plateau::default(),
-                };
-                (
-                    AnimatableNerf::new(&model_cfg, exp.model_sizes(), &device),
-                    optimizer(&cfg),
-                    state,
-                )
-            }
-        };
-    let log = MetricsLog::open(run.metrics_log(), 1, options.resume.then_some(state.step))?;
+    let restored = if options.resume {
+        let restored = Checkpoint::restore_newest(
+            &run.checkpoints(),
+            Stage::Train,
+            &model_cfg,
+            &device,
+            Some(&|| optimizer(&cfg)),
+        )?
+        .with_context(|| {
+            format!(
+                "--resume: {} has no stage-1 checkpoint (start without --resume)",
+                run.root.display()
+            )
+        })?;
+        check_sizes(&restored.state, exp)?;
+        Some(restored)
+    } else {
+        None
+    };
+    let (mut model, mut optim, mut state) = match restored {
+        Some(r) => (r.model, r.optim.expect("asked for the optimiser"), r.state),
+        None => {
+            device.seed(exp.config.seed);
+            let sampler = RaySampler::new(
+                exp.config.seed,
+                SamplerOptions {
+                    rays: cfg.batch,
+                    skip_mask_edges: cfg.skip_mask_edges,
+                    ..SamplerOptions::default()
+                },
+            );
+            let state = TrainerState {
+                stage: Stage::Train,
+                step: 0,
+                model: model_cfg.clone(),
+                training_frames: exp.train_frames.len(),
+                joints: exp.prepared.skeleton.num_joints(),
+                novel_frames: None,
+                sampler: Some(sampler),
+                rng: ChaCha8Rng::seed_from_u64(exp.config.seed ^ 0x5eed_0001),
+                plateau: Plateau::default(),
+                window: Default::default(),
+            };
+            (
+                AnimatableNerf::new(&model_cfg, exp.model_sizes(), &device),
+                optimizer(&cfg),
+                state,
+            )
+        }
+    };
+    let log = MetricsLog::open(run.metrics_log(), Stage::Train, state.step)?;
     let bar = StageProgress::new("stage 1", state.step, cfg.iterations, options.progress);
     let started = Instant::now();
-    let mut window = Window::default();
+    state.window.start_clock();
     let mut last_loss = f32::NAN;
     let samples = model_cfg.samples_per_ray;
     let mut interrupted = false;
@@ -261,21 +234,21 @@ pub fn train_stage1(
             ],
             0,
         ));
-        check_finite(values[0], 1, state.step, run)?;
+        check_finite(values[0], Stage::Train, state.step, run)?;
         let lr = learning_rate(&cfg, state.step);
         let grads = GradientsParams::from_grads(loss.backward(), &model);
         model = optim.step(lr, model, grads);
         state.step += 1;
         model.update_occupancy(exp.canonical(), state.step);
         last_loss = values[0];
-        window.add(
-            values[0],
-            values[1],
-            values[2],
-            out.surviving_samples as f32 / out.total_samples as f32,
-            out.occupied_samples as f32 / out.total_samples as f32,
-            rays.len(),
-        );
+        state.window.add(StepValues {
+            loss: values[0],
+            mse: values[1],
+            blend: values[2],
+            surviving: out.surviving_samples as f32 / out.total_samples as f32,
+            occupied: out.occupied_samples as f32 / out.total_samples as f32,
+            items: rays.len(),
+        });
 
         let validation_psnr = if cfg.validate_every > 0 && state.step % cfg.validate_every == 0 {
             Some(validate(&model, exp, run, state.step)?)
@@ -286,18 +259,19 @@ pub fn train_stage1(
             || state.step == cfg.iterations
             || validation_psnr.is_some()
         {
-            let mse = window.mean(window.mse);
+            let means = state.window.close();
+            let mse = means.mse;
             let line = LogLine {
-                stage: 1,
+                stage: Stage::Train,
                 step: state.step,
-                loss: window.mean(window.loss),
+                loss: means.loss,
                 color_mse: Some(mse),
                 psnr: Some(psnr_from_mse(mse)),
-                blend: window.mean(window.blend),
+                blend: means.blend,
                 lr,
-                items_per_second: window.rate(),
-                surviving_fraction: Some(window.mean(window.surviving)),
-                nerf_fraction: Some(window.mean(window.occupied)),
+                items_per_second: means.items_per_second,
+                surviving_fraction: Some(means.surviving),
+                nerf_fraction: Some(means.occupied),
                 validation_psnr,
             };
             bar.report(
@@ -310,7 +284,6 @@ pub fn train_stage1(
                 ),
             );
             log.append(&line)?;
-            window = Window::default();
             state.plateau.update(state.step, line.loss, &cfg);
         }
         bar.set_step(state.step);
@@ -397,40 +370,59 @@ pub fn train_stage2(
         bail!("the config selects no novel-pose frames (dataset.*.novel_pose_frames); nothing to animate");
     }
     let resumed = if options.resume {
-        Checkpoint::latest(&run.checkpoints(), 2)?
+        let restored = Checkpoint::restore_newest(
+            &run.checkpoints(),
+            Stage::Animate,
+            &model_cfg,
+            &device,
+            Some(&|| optimizer(&cfg)),
+        )?
+        .with_context(|| {
+            format!(
+                "--resume: {} has no stage-2 checkpoint (start stage 2 without --resume)",
+                run.root.display()
+            )
+        })?;
+        Some(restored)
     } else {
         None
     };
     let (mut model, mut optim, mut state) = match resumed {
-        Some(ck) => {
-            let (model, state) = ck.load_model(&model_cfg, &device)?;
-            (
-                model.freeze_stage1(),
-                ck.load_optimizer(optimizer(&cfg))?,
-                state,
-            )
-        }
+        Some(r) => (
+            r.model.freeze_stage1(),
+            r.optim.expect("asked for the optimiser"),
+            r.state,
+        ),
         None => {
-            let ck = Checkpoint::latest(&run.checkpoints(), 1)?.with_context(|| {
+            let stage1 = Checkpoint::restore_newest(
+                &run.checkpoints(),
+                Stage::Train,
+                &model_cfg,
+                &device,
+                None,
+            )?
+            .with_context(|| {
                 format!(
                     "{} has no stage-1 checkpoint; run `anerf train` first",
                     run.root.display()
                 )
             })?;
-            let (model, stage1) = ck.load_model(&model_cfg, &device)?;
-            check_sizes(&stage1, exp)?;
+            check_sizes(&stage1.state, exp)?;
             device.seed(exp.config.seed ^ 2);
             let state = TrainerState {
-                stage: 2,
+                stage: Stage::Animate,
                 step: 0,
                 novel_frames: Some(exp.novel_frames.len()),
                 sampler: None,
                 rng: ChaCha8Rng::seed_from_u64(exp.config.seed ^ 0x5eed_0002),
                 plateau: Plateau::default(),
-                ..stage1
+                window: Default::default(),
+                ..stage1.state
             };
             (
-                model.with_novel_field(exp.novel_frames.len(), &device),
+                stage1
+                    .model
+                    .with_novel_field(exp.novel_frames.len(), &device),
                 optimizer(&cfg),
                 state,
             )
@@ -450,10 +442,10 @@ pub fn train_stage2(
             seconds: 0.0,
         });
     }
-    let log = MetricsLog::open(run.metrics_log(), 2, options.resume.then_some(state.step))?;
+    let log = MetricsLog::open(run.metrics_log(), Stage::Animate, state.step)?;
     let bar = StageProgress::new("stage 2", state.step, cfg.iterations, options.progress);
     let started = Instant::now();
-    let mut window = Window::default();
+    state.window.start_clock();
     let mut last_loss = f32::NAN;
     let mut interrupted = false;
     let first_step = state.step;
@@ -473,23 +465,29 @@ pub fn train_stage2(
             bounds: exp.frame_bounds(frame)?,
         };
         let (loss, value) = stage2_loss(&model, &mut state.rng, &cfg, &target, exp.canonical());
-        check_finite(value, 2, state.step, run)?;
+        check_finite(value, Stage::Animate, state.step, run)?;
         let lr = learning_rate(&cfg, state.step);
         let grads = GradientsParams::from_grads(loss.backward(), &model);
         model = optim.step(lr, model, grads);
         state.step += 1;
         last_loss = value;
-        window.add(value, 0.0, value, 1.0, 1.0, 2 * cfg.batch);
+        state.window.add(StepValues {
+            loss: value,
+            blend: value,
+            items: 2 * cfg.batch,
+            ..StepValues::default()
+        });
         if state.step % cfg.log_every == 0 || state.step == cfg.iterations {
+            let means = state.window.close();
             let line = LogLine {
-                stage: 2,
+                stage: Stage::Animate,
                 step: state.step,
-                loss: window.mean(window.loss),
+                loss: means.loss,
                 color_mse: None,
                 psnr: None,
-                blend: window.mean(window.blend),
+                blend: means.blend,
                 lr,
-                items_per_second: window.rate(),
+                items_per_second: means.items_per_second,
                 surviving_fraction: None,
                 nerf_fraction: None,
                 validation_psnr: None,
@@ -502,7 +500,6 @@ pub fn train_stage2(
                 ),
             );
             log.append(&line)?;
-            window = Window::default();
             state.plateau.update(state.step, line.loss, &cfg);
         }
         bar.set_step(state.step);

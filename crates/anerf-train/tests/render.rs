@@ -15,6 +15,8 @@ use anerf_train::checkpoint::Checkpoint;
 use anerf_train::commands::{self, RenderJob};
 use anerf_train::experiment::Experiment;
 use anerf_train::poses::PoseSequence;
+use anerf_train::run_start::RunStart;
+use anerf_train::stage::Stage;
 use anerf_train::train::{fit_pose_codes, PoseTarget};
 use common::{quiet, tiny, trained};
 use glam::Vec3;
@@ -42,7 +44,14 @@ fn pose_files_render_as_the_dataset_frames_they_came_from() {
         &["model.neural_blend_weights=false", "train.iterations=8"],
     );
     let run = trained(&config, dir.path());
-    commands::animate(&run, &quiet(), false, None, &AtomicBool::new(false)).unwrap();
+    commands::animate(
+        &run,
+        &quiet(),
+        RunStart::Fresh,
+        None,
+        &AtomicBool::new(false),
+    )
+    .unwrap();
     let motion = motion(dir.path());
     commands::render(&run, RenderJob::NovelPoses { view: 1 }, &quiet()).unwrap();
     let gif = commands::render(
@@ -128,7 +137,7 @@ fn fitting_pose_codes_lowers_their_consistency_loss() {
     let run = trained(&config, dir.path());
     let device = cpu_device().autodiff();
     let exp = Experiment::open(config.clone(), device.clone(), false).unwrap();
-    let (model, _) = Checkpoint::latest(&run.join("checkpoints"), 1)
+    let (model, _) = Checkpoint::latest(&run.join("checkpoints"), Stage::Train)
         .unwrap()
         .unwrap()
         .load_model(&config.model, &device)
@@ -175,7 +184,7 @@ fn an_orbit_renders_the_requested_views_and_size() {
     }
     let device = cpu_device();
     let mut exp = Experiment::open(config.clone(), device.clone(), false).unwrap();
-    let (model, _) = Checkpoint::latest(&run.join("checkpoints"), 1)
+    let (model, _) = Checkpoint::latest(&run.join("checkpoints"), Stage::Train)
         .unwrap()
         .unwrap()
         .load_model(&config.model, &device)

@@ -15,6 +15,8 @@ use anerf_train::commands;
 use anerf_train::config::{self, ExperimentConfig};
 use anerf_train::experiment::Experiment;
 use anerf_train::render::render_view;
+use anerf_train::run_start::RunStart;
+use anerf_train::stage::Stage;
 use common::{quiet, tiny, train, trained};
 
 fn losses(run: &Path) -> Vec<f32> {
@@ -33,7 +35,7 @@ fn held_out_psnr(config: &ExperimentConfig, run: Option<&Path>) -> f64 {
     let mut exp = Experiment::open(config.clone(), device.clone(), false).unwrap();
     let model = match run {
         Some(r) => {
-            Checkpoint::latest(&r.join("checkpoints"), 1)
+            Checkpoint::latest(&r.join("checkpoints"), Stage::Train)
                 .unwrap()
                 .unwrap()
                 .load_model(&config.model, &device)
@@ -96,10 +98,34 @@ fn resuming_gives_the_losses_of_an_uninterrupted_run() {
     let straight = dir.path().join("straight");
     let split = dir.path().join("split");
     let never = AtomicBool::new(false);
-    commands::train(config.clone(), &straight, &quiet(), false, None, &never).unwrap();
-    let first = commands::train(config.clone(), &split, &quiet(), false, Some(3), &never).unwrap();
+    commands::train(
+        config.clone(),
+        &straight,
+        &quiet(),
+        RunStart::Fresh,
+        None,
+        &never,
+    )
+    .unwrap();
+    let first = commands::train(
+        config.clone(),
+        &split,
+        &quiet(),
+        RunStart::Fresh,
+        Some(3),
+        &never,
+    )
+    .unwrap();
     assert!(first.interrupted && first.steps == 3);
-    let second = commands::train(config.clone(), &split, &quiet(), true, None, &never).unwrap();
+    let second = commands::train(
+        config.clone(),
+        &split,
+        &quiet(),
+        RunStart::Resume,
+        None,
+        &never,
+    )
+    .unwrap();
     assert_eq!(second.steps, 8);
     let (a, b) = (losses(&straight), losses(&split));
     assert_eq!(a.len(), 8);
@@ -107,9 +133,9 @@ fn resuming_gives_the_losses_of_an_uninterrupted_run() {
 
     // Stage 2 resumes the same way.
     let never = AtomicBool::new(false);
-    commands::animate(&straight, &quiet(), false, None, &never).unwrap();
-    commands::animate(&split, &quiet(), false, Some(2), &never).unwrap();
-    commands::animate(&split, &quiet(), true, None, &never).unwrap();
+    commands::animate(&straight, &quiet(), RunStart::Fresh, None, &never).unwrap();
+    commands::animate(&split, &quiet(), RunStart::Fresh, Some(2), &never).unwrap();
+    commands::animate(&split, &quiet(), RunStart::Resume, None, &never).unwrap();
     let stage2 = |run: &Path| -> Vec<String> {
         std::fs::read_to_string(run.join("metrics.jsonl"))
             .unwrap()
@@ -166,7 +192,7 @@ fn an_interrupt_leaves_a_loadable_checkpoint() {
     assert!(status.success());
     let exit = child.wait().unwrap();
     assert_eq!(exit.code(), Some(130), "an interrupted run exits with 130");
-    let ck = Checkpoint::latest(&run.join("checkpoints"), 1)
+    let ck = Checkpoint::latest(&run.join("checkpoints"), Stage::Train)
         .unwrap()
         .expect("a checkpoint after Ctrl-C");
     let (_, state) = ck.load_model(&config.model, &cpu_device()).unwrap();
@@ -183,8 +209,16 @@ fn a_full_disk_while_checkpointing_keeps_the_previous_checkpoint() {
     let path = write_config(dir.path(), &config);
     let run = dir.path().join("run");
     let never = AtomicBool::new(false);
-    commands::train(config.clone(), &run, &quiet(), false, Some(2), &never).unwrap();
-    let before = Checkpoint::latest(&run.join("checkpoints"), 1)
+    commands::train(
+        config.clone(),
+        &run,
+        &quiet(),
+        RunStart::Fresh,
+        Some(2),
+        &never,
+    )
+    .unwrap();
+    let before = Checkpoint::latest(&run.join("checkpoints"), Stage::Train)
         .unwrap()
         .unwrap();
     let model_bytes = std::fs::read(before.dir.join("model.bpk")).unwrap();
@@ -204,7 +238,7 @@ fn a_full_disk_while_checkpointing_keeps_the_previous_checkpoint() {
             && stderr.contains("previous checkpoint is unchanged"),
         "{stderr}"
     );
-    let after = Checkpoint::latest(&run.join("checkpoints"), 1)
+    let after = Checkpoint::latest(&run.join("checkpoints"), Stage::Train)
         .unwrap()
         .unwrap();
     assert_eq!(after.dir, before.dir);
@@ -225,7 +259,15 @@ fn bad_configurations_are_named() {
     let err = |c: ExperimentConfig| {
         format!(
             "{:#}",
-            commands::train(c, &dir.path().join("bad"), &quiet(), false, None, &never).unwrap_err()
+            commands::train(
+                c,
+                &dir.path().join("bad"),
+                &quiet(),
+                RunStart::Fresh,
+                None,
+                &never
+            )
+            .unwrap_err()
         )
     };
     let missing = tiny(dir.path(), &["dataset.root=\"/nonexistent/CoreView_999\""]);
@@ -245,7 +287,7 @@ fn bad_configurations_are_named() {
         tiny(dir.path(), &["train.iterations=2"]),
         &run,
         &quiet(),
-        false,
+        RunStart::Fresh,
         None,
         &never,
     )
@@ -253,7 +295,7 @@ fn bad_configurations_are_named() {
     let wider = tiny(dir.path(), &["train.iterations=4", "model.width=48"]);
     let e = format!(
         "{:#}",
-        commands::train(wider, &run, &quiet(), true, None, &never).unwrap_err()
+        commands::train(wider, &run, &quiet(), RunStart::Resume, None, &never).unwrap_err()
     );
     assert!(e.contains("model"), "{e}");
 }
@@ -279,7 +321,7 @@ fn a_diverging_run_stops_with_a_clear_message_and_keeps_the_last_good_checkpoint
         message.contains("the loss is") && message.contains("last good checkpoint"),
         "{message}"
     );
-    let ck = Checkpoint::latest(&run.join("checkpoints"), 1)
+    let ck = Checkpoint::latest(&run.join("checkpoints"), Stage::Train)
         .unwrap()
         .expect("a checkpoint before the divergence");
     let (_, state) = ck.load_model(&config.model, &cpu_device()).unwrap();

@@ -263,6 +263,33 @@ impl std::str::FromStr for ModelPreset {
 }
 
 impl ModelConfig {
+    /// An upper bound on the bytes one ray sample occupies during a step (`radiance: true`: the encodings,
+    /// the NeRF's trunk and colour head and both blend-weight fields, observation and canonical, with
+    /// `joints` outputs), or one stage-2 point (`radiance: false`: the blend-weight fields alone); f32,
+    /// times 3 when training (the autodiff graph keeps the forward activations and the backward pass adds
+    /// their gradients). Culling and the occupancy grid usually leave far fewer samples than a batch holds;
+    /// the bound serves to refuse sizes that cannot fit.
+    pub fn bytes_per_sample(&self, joints: usize, radiance: bool, training: bool) -> u64 {
+        let (nerf_in, blend_in) = match &self.encoding {
+            PointEncoding::Frequency => {
+                let f = 3 + 6 * self.xyz_frequencies;
+                (f, f)
+            }
+            PointEncoding::HashGrid { nerf, blend } => (
+                nerf.levels * nerf.features_per_level,
+                blend.levels * blend.features_per_level,
+            ),
+        };
+        let trunk = 2 * self.depth * self.width;
+        let dirs = 3 + 6 * self.dir_frequencies;
+        let nerf = nerf_in + trunk + self.width + dirs + self.appearance_code_dim + self.width + 4;
+        let blend = 2 * (blend_in + self.blend_code_dim + trunk + 2 * joints);
+        // Points, directions, distances, weights and bookkeeping of the sample itself.
+        let sample = 32;
+        let floats = (if radiance { nerf } else { 0 } + blend + sample) as u64;
+        floats * 4 * if training { 3 } else { 1 }
+    }
+
     /// Checks every field; the error names the field and what is allowed.
     pub fn validate(&self) -> Result<(), String> {
         let positive = [

@@ -9,6 +9,7 @@ use anerf_data::synthetic::{write_subject, SyntheticSpec};
 use anerf_train::cli::Common;
 use anerf_train::commands;
 use anerf_train::config::{self, ExperimentConfig};
+use anerf_train::run_start::RunStart;
 use anerf_train::train::StageOutcome;
 
 /// Command options without progress bars, on the default device.
@@ -26,7 +27,7 @@ pub fn train(config: &ExperimentConfig, run: &Path) -> anyhow::Result<StageOutco
         config.clone(),
         run,
         &quiet(),
-        false,
+        RunStart::Fresh,
         None,
         &AtomicBool::new(false),
     )
@@ -41,6 +42,14 @@ pub fn trained(config: &ExperimentConfig, dir: &Path) -> PathBuf {
 
 /// Writes the tiny subject into `dir/subject` and returns a config training on it.
 pub fn tiny(dir: &Path, overrides: &[&str]) -> ExperimentConfig {
+    tiny_config(dir, overrides).unwrap()
+}
+
+/// [`tiny`], or the config error its overrides cause.
+pub fn tiny_config(
+    dir: &Path,
+    overrides: &[&str],
+) -> Result<ExperimentConfig, config::ConfigError> {
     let subject = dir.join("subject");
     if !subject.exists() {
         write_subject(&SyntheticSpec::tiny(), &subject).unwrap();
@@ -79,7 +88,7 @@ chunk = 4096
     );
     config::merge(&mut table, toml::from_str(&text).unwrap());
     for o in overrides {
-        config::apply_override(&mut table, o).unwrap();
+        config::apply_override(&mut table, o)?;
     }
-    config::from_table(table).unwrap()
+    config::from_table(table)
 }
