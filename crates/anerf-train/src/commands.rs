@@ -308,6 +308,15 @@ fn apply_overrides(config: &mut ExperimentConfig, common: &Common) -> Result<()>
 }
 
 fn report_outcome(stage: &str, o: &StageOutcome, run: &RunDir) {
+    if o.loss.is_nan() && !o.interrupted {
+        // No step ran: the stage had already finished (a resumed or re-run demo).
+        eprintln!(
+            "{stage} was already complete at step {}; checkpoints in {}",
+            o.steps,
+            run.checkpoints().display()
+        );
+        return;
+    }
     let how = if o.interrupted {
         "interrupted"
     } else {
