@@ -485,26 +485,42 @@ fn dataset_volumes_use_the_reference_bounds() {
     assert!((vol.bounds.max - pb.max).length() < 1e-5);
 }
 
-#[test]
-fn images_of_the_wrong_size_are_named_when_preparing() {
+/// The error of preparing the 377-style fixture after `edit` changed it: after loading, so that only
+/// preparation can notice. No manifest may have been written.
+fn prepare_error_after_edit(edit: impl FnOnce(&std::path::Path)) -> String {
     let dir = tempfile::tempdir().unwrap();
     let data = dir.path().join("CoreView_377");
     common::copy_tree(&fixture("zju_mocap/CoreView_377"), &data);
     let subject = load_zju_mocap(&data, &LoadOptions::default()).unwrap();
-    // Replaced after loading, so only preparation can notice.
-    image::RgbImage::new(30, 30)
-        .save(data.join("Camera_B2/000001.jpg"))
-        .unwrap();
+    edit(&data);
     let err = prepare(&subject, &options(&dir.path().join("cache")))
         .unwrap_err()
         .to_string();
+    assert!(!walk(&dir.path().join("cache"))
+        .iter()
+        .any(|p| p.ends_with("manifest.json")));
+    err
+}
+
+#[test]
+fn images_of_the_wrong_size_are_named_when_preparing() {
+    let err = prepare_error_after_edit(|data| {
+        image::RgbImage::new(30, 30)
+            .save(data.join("Camera_B2/000001.jpg"))
+            .unwrap()
+    });
     assert!(
         err.contains("Camera_B2/000001.jpg") && err.contains("30×30") && err.contains("48×40"),
         "{err}"
     );
-    assert!(!walk(&dir.path().join("cache"))
-        .iter()
-        .any(|p| p.ends_with("manifest.json")));
+}
+
+#[test]
+fn cut_images_and_masks_are_named_when_preparing() {
+    for rel in ["Camera_B2/000001.jpg", "mask_cihp/Camera_B3/000002.png"] {
+        let err = prepare_error_after_edit(|data| common::cut_file(&data.join(rel), |n| n - 4));
+        assert!(err.contains(rel) && err.contains("cut short"), "{err}");
+    }
 }
 
 /// A pose file of a frame poses the body as the prepared frame: the synthetic subject's posed vertices are

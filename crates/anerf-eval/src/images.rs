@@ -4,6 +4,7 @@
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
+use anerf_data::DataError;
 use image::codecs::gif::{GifEncoder, Repeat};
 use image::codecs::png::PngEncoder;
 use image::{Delay, DynamicImage, Frame, ImageBuffer, Luma, RgbaImage};
@@ -56,17 +57,17 @@ pub fn read_mask(path: &Path) -> Result<PixelMask, EvalError> {
     })
 }
 
+/// Decodes through the data layer's one checked reader, so a cut-short or damaged file is refused here too.
 fn decode(path: &Path, expected: &'static str) -> Result<DynamicImage, EvalError> {
-    let unreadable = |source| EvalError::UnreadableImage {
-        path: path.to_path_buf(),
-        source,
-    };
-    image::ImageReader::open(path)
-        .map_err(|e| EvalError::io(path, expected, e))?
-        .with_guessed_format()
-        .map_err(|e| EvalError::io(path, expected, e))?
-        .decode()
-        .map_err(unreadable)
+    anerf_data::formats::images::decode(path).map_err(|e| match e {
+        DataError::Missing { path, .. } => EvalError::MissingFile { path, expected },
+        DataError::Image { path, source } => EvalError::UnreadableImage { path, source },
+        DataError::Io { path, source } => EvalError::Io { path, source },
+        other => EvalError::Format {
+            path: other.path().to_path_buf(),
+            detail: other.to_string(),
+        },
+    })
 }
 
 fn is_16_bit(image: &DynamicImage) -> bool {

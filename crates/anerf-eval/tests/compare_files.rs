@@ -108,3 +108,36 @@ fn errors_name_the_file_and_what_was_expected() {
     assert!(matches!(err, EvalError::Metric { .. }), "{err}");
     assert!(message(err).contains("tiny_mask.png"));
 }
+
+#[test]
+fn cut_images_are_refused_naming_the_file() {
+    let dir = png_dir();
+    let gt = dir.join("gt.png");
+    let scratch = tempfile::tempdir().unwrap();
+    // A JPEG of the prediction cut in half (the decoder alone fills the rest with grey), and the
+    // prediction PNG without its final IEND chunk.
+    let jpeg = scratch.path().join("pred.jpg");
+    image::open(dir.join("pred.png"))
+        .unwrap()
+        .to_rgb8()
+        .save(&jpeg)
+        .unwrap();
+    let png = scratch.path().join("pred_no_iend.png");
+    std::fs::copy(dir.join("pred.png"), &png).unwrap();
+    type Keep = fn(usize) -> usize;
+    let cases: [(&PathBuf, Keep); 2] = [(&jpeg, |n| n / 2), (&png, |n| n - 12)];
+    for (path, keep) in cases {
+        compare_files(path, &gt, None).unwrap();
+        let bytes = std::fs::read(path).unwrap();
+        std::fs::write(path, &bytes[..keep(bytes.len())]).unwrap();
+        let err = compare_files(path, &gt, None).unwrap_err();
+        assert!(matches!(err, EvalError::UnreadableImage { .. }), "{err}");
+        let text = message(err);
+        assert!(
+            text.contains(&path.display().to_string()) && text.contains("cut short"),
+            "{text}"
+        );
+        let err = compare_files(&dir.join("pred.png"), &gt, Some(path)).unwrap_err();
+        assert!(message(err).contains("cut short"), "as a mask too");
+    }
+}

@@ -1,33 +1,38 @@
-//! Images (jpg, png) and foreground masks through the `image` crate.
+//! Images (jpg, png) and foreground masks through the `image` crate. Every decode goes through [`decode`],
+//! which first checks that the file is whole ([`super::image_structure`]): the decoders themselves accept
+//! a JPEG cut in half.
 
+use std::io::Cursor;
 use std::path::Path;
 
-use image::{GrayImage, Rgb32FImage};
+use image::{DynamicImage, GrayImage, ImageFormat, ImageReader, Rgb32FImage};
 
+use super::image_structure;
 use crate::error::DataError;
 
-fn require_file(path: &Path) -> Result<(), DataError> {
-    if path.is_file() {
-        Ok(())
-    } else {
-        Err(DataError::Missing {
-            path: path.to_path_buf(),
-            what: "an image file".into(),
-        })
+fn image_error(path: &Path) -> impl FnOnce(image::ImageError) -> DataError + '_ {
+    move |source| DataError::Image {
+        path: path.to_path_buf(),
+        source,
     }
 }
 
-fn open(path: &Path) -> Result<image::DynamicImage, DataError> {
-    require_file(path)?;
-    image::open(path).map_err(|source| DataError::Image {
-        path: path.to_path_buf(),
-        source,
-    })
+/// The bytes and format of a PNG or JPEG file found whole.
+fn read_whole(path: &Path) -> Result<(Vec<u8>, ImageFormat), DataError> {
+    let bytes = super::read_bytes(path)?;
+    let format = image_structure::check(&bytes).map_err(image_error(path))?;
+    Ok((bytes, format))
+}
+
+/// A whole PNG or JPEG file, decoded; a cut-short or damaged file is an error naming it.
+pub fn decode(path: &Path) -> Result<DynamicImage, DataError> {
+    let (bytes, format) = read_whole(path)?;
+    image::load_from_memory_with_format(&bytes, format).map_err(image_error(path))
 }
 
 /// An RGB image with channels in `[0, 1]` (8-bit values / 255, as the reference reads them).
 pub fn read_rgb(path: &Path) -> Result<Rgb32FImage, DataError> {
-    Ok(open(path)?.into_rgb32f())
+    Ok(decode(path)?.into_rgb32f())
 }
 
 /// A foreground mask: 1 where the stored pixel is non-zero, 0 elsewhere (multi-channel masks use their
@@ -42,8 +47,8 @@ pub fn read_mask(path: &Path) -> Result<GrayImage, DataError> {
 
 /// A single-channel 8-bit image as stored (the first channel of a colour file).
 pub fn read_gray(path: &Path) -> Result<GrayImage, DataError> {
-    Ok(match open(path)? {
-        image::DynamicImage::ImageLuma8(g) => g,
+    Ok(match decode(path)? {
+        DynamicImage::ImageLuma8(g) => g,
         other => {
             let rgb = other.into_rgb8();
             GrayImage::from_fn(rgb.width(), rgb.height(), |x, y| {
@@ -53,11 +58,22 @@ pub fn read_gray(path: &Path) -> Result<GrayImage, DataError> {
     })
 }
 
-/// Width and height from the file header, without decoding the pixels.
+/// Width and height from the file header alone: cheap, but blind to a file cut short after its header.
 pub fn image_size(path: &Path) -> Result<(u32, u32), DataError> {
-    require_file(path)?;
-    image::image_dimensions(path).map_err(|source| DataError::Image {
-        path: path.to_path_buf(),
-        source,
-    })
+    if !path.is_file() {
+        return Err(DataError::Missing {
+            path: path.to_path_buf(),
+            what: "an image file".into(),
+        });
+    }
+    image::image_dimensions(path).map_err(image_error(path))
+}
+
+/// Width and height of a file found whole (structure and CRCs checked, pixels not decoded): what
+/// `anerf info` reads of every image and mask.
+pub fn whole_image_size(path: &Path) -> Result<(u32, u32), DataError> {
+    let (bytes, format) = read_whole(path)?;
+    ImageReader::with_format(Cursor::new(&bytes), format)
+        .into_dimensions()
+        .map_err(image_error(path))
 }

@@ -2,6 +2,7 @@
 //! `.npy` arrays and `np.save(dict)` pickles used by the synthetic subjects. The parsers work on bytes; the
 //! functions here read files and attach the path to every error.
 
+pub mod image_structure;
 pub mod images;
 pub mod npy;
 pub mod npy_write;

@@ -72,3 +72,9 @@ pub fn copy_tree(from: &Path, to: &Path) {
         }
     }
 }
+
+/// Cuts the file at `path` to its first `keep(len)` bytes, as an interrupted copy leaves it.
+pub fn cut_file(path: &Path, keep: impl FnOnce(usize) -> usize) {
+    let bytes = std::fs::read(path).unwrap();
+    std::fs::write(path, &bytes[..keep(bytes.len())]).unwrap();
+}

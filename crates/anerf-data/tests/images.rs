@@ -1,0 +1,76 @@
+//! Cut-short images and masks are refused by every reader, naming the file: the `image` decoders alone
+//! decode a JPEG cut in half (the rest comes out grey) and a PNG that lacks its final chunk.
+
+mod common;
+
+use std::path::Path;
+
+use anerf_data::formats::images;
+use anerf_data::DataError;
+use common::{cut_file, fixture};
+
+type Reader = fn(&Path) -> Result<(), DataError>;
+
+const READERS: [(&str, Reader); 5] = [
+    ("decode", |p| images::decode(p).map(drop)),
+    ("read_rgb", |p| images::read_rgb(p).map(drop)),
+    ("read_gray", |p| images::read_gray(p).map(drop)),
+    ("read_mask", |p| images::read_mask(p).map(drop)),
+    ("whole_image_size", |p| {
+        images::whole_image_size(p).map(drop)
+    }),
+];
+
+#[test]
+fn cut_jpegs_and_pngs_are_refused_by_every_reader() {
+    let dir = tempfile::tempdir().unwrap();
+    let jpeg = fixture("zju_mocap/CoreView_377/Camera_B1/000000.jpg");
+    let png = fixture("zju_mocap/CoreView_377/mask_cihp/Camera_B1/000000.png");
+    type Keep = fn(usize) -> usize;
+    let cases: [(&str, &Path, Keep); 4] = [
+        ("half.jpg", &jpeg, |n| n / 2),
+        ("no_eoi.jpg", &jpeg, |n| n - 2),
+        ("half.png", &png, |n| n / 2),
+        ("no_iend.png", &png, |n| n - 12),
+    ];
+    for (name, source, keep) in cases {
+        let path = dir.path().join(name);
+        std::fs::copy(source, &path).unwrap();
+        for (reader, read) in READERS {
+            read(&path).unwrap_or_else(|e| panic!("{reader} refuses the whole {name}: {e}"));
+        }
+        cut_file(&path, keep);
+        for (reader, read) in READERS {
+            let err = read(&path).expect_err(&format!("{reader} accepted {name}"));
+            let msg = err.to_string();
+            assert!(
+                err.path() == path && msg.contains(name) && msg.contains("cut short"),
+                "{reader}, {name}: {msg}"
+            );
+        }
+    }
+}
+
+#[test]
+fn a_flipped_bit_in_a_png_and_a_file_of_another_kind_are_refused() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("flipped.png");
+    std::fs::copy(
+        fixture("zju_mocap/CoreView_377/mask_cihp/Camera_B1/000000.png"),
+        &path,
+    )
+    .unwrap();
+    let mut bytes = std::fs::read(&path).unwrap();
+    let in_idat = bytes.len() - 12 - 6;
+    bytes[in_idat] ^= 0x01;
+    std::fs::write(&path, &bytes).unwrap();
+    let msg = images::read_mask(&path).unwrap_err().to_string();
+    assert!(msg.contains("flipped.png") && msg.contains("CRC"), "{msg}");
+    let text = dir.path().join("notes.jpg");
+    std::fs::write(&text, b"not an image").unwrap();
+    let msg = images::whole_image_size(&text).unwrap_err().to_string();
+    assert!(
+        msg.contains("notes.jpg") && msg.contains("could not be determined"),
+        "{msg}"
+    );
+}
