@@ -5,28 +5,55 @@
 mod common;
 
 use std::alloc::{GlobalAlloc, Layout, System};
-use std::sync::atomic::{AtomicUsize, Ordering};
+use std::cell::Cell;
 
 use anerf_data::formats::{npy, pickle};
 use rand::{Rng, SeedableRng};
 
-/// Records the largest single allocation request since the last reset.
+/// Counts this thread's allocations (tests run on threads of their own): the largest single request and
+/// the peak of live bytes since [`Counting::reset`].
 struct Counting;
 
-static LARGEST: AtomicUsize = AtomicUsize::new(0);
+thread_local! {
+    static LARGEST: Cell<usize> = const { Cell::new(0) };
+    static LIVE: Cell<usize> = const { Cell::new(0) };
+    static PEAK: Cell<usize> = const { Cell::new(0) };
+}
+
+impl Counting {
+    fn reset() {
+        LARGEST.set(0);
+        LIVE.set(0);
+        PEAK.set(0);
+    }
+
+    fn grew(request: usize, added: usize) {
+        LARGEST.set(LARGEST.get().max(request));
+        LIVE.set(LIVE.get() + added);
+        PEAK.set(PEAK.get().max(LIVE.get()));
+    }
+
+    /// Memory freed here may have been allocated before the reset.
+    fn shrank(freed: usize) {
+        LIVE.set(LIVE.get().saturating_sub(freed));
+    }
+}
 
 unsafe impl GlobalAlloc for Counting {
     unsafe fn alloc(&self, layout: Layout) -> *mut u8 {
-        LARGEST.fetch_max(layout.size(), Ordering::Relaxed);
+        Counting::grew(layout.size(), layout.size());
         // SAFETY: forwarded unchanged to the system allocator.
         unsafe { System.alloc(layout) }
     }
     unsafe fn dealloc(&self, ptr: *mut u8, layout: Layout) {
+        Counting::shrank(layout.size());
         // SAFETY: `ptr` came from `System.alloc` with this layout.
         unsafe { System.dealloc(ptr, layout) }
     }
     unsafe fn realloc(&self, ptr: *mut u8, layout: Layout, new_size: usize) -> *mut u8 {
-        LARGEST.fetch_max(new_size, Ordering::Relaxed);
+        // While the block moves, old and new coexist.
+        Counting::grew(new_size, new_size);
+        Counting::shrank(layout.size());
         // SAFETY: as in `alloc`/`dealloc`.
         unsafe { System.realloc(ptr, layout, new_size) }
     }
@@ -109,7 +136,7 @@ fn mutated_files_give_errors_not_panics_or_huge_allocations() {
     for round in 0..1000 {
         for (name, src) in &files {
             let input = mutate(&mut rng, src);
-            LARGEST.store(0, Ordering::Relaxed);
+            Counting::reset();
             let result = std::panic::catch_unwind(|| {
                 let a = npy::parse(&input).is_ok();
                 let b = pickle::parse(&input).is_ok();
@@ -121,7 +148,7 @@ fn mutated_files_give_errors_not_panics_or_huge_allocations() {
                 let c = pickle::parse(body).is_ok();
                 a || b || c
             });
-            let largest = LARGEST.load(Ordering::Relaxed);
+            let largest = LARGEST.get();
             match result {
                 Ok(true) => ok += 1,
                 Ok(false) => err += 1,
@@ -140,4 +167,36 @@ fn mutated_files_give_errors_not_panics_or_huge_allocations() {
         err > ok / 10,
         "mutations should mostly break files: {ok} ok, {err} rejected"
     );
+}
+
+/// The hostile pickle, scaled down: one-byte EMPTY_LIST opcodes (and MEMOIZE after each), every list
+/// left on the stack. Without the cap, 2 MB of them held about 170× their size.
+#[test]
+fn a_pickle_of_one_byte_list_opcodes_stops_at_the_memory_cap() {
+    let dir = tempfile::tempdir().unwrap();
+    for (name, unit) in [("lists.pkl", &b"]"[..]), ("memoised.pkl", b"]\x94")] {
+        let bytes = [&b"\x80\x02"[..], &unit.repeat(2_000_000 / unit.len()), b"."].concat();
+        let cap = pickle::memory_cap(bytes.len());
+        Counting::reset();
+        let result = pickle::parse(&bytes);
+        let peak = PEAK.get();
+        assert_eq!(
+            result,
+            Err(pickle::PickleError::MemoryCap {
+                cap,
+                input: bytes.len()
+            }),
+            "{name}"
+        );
+        assert!(peak <= cap, "{name}: peak {peak} bytes, cap {cap}");
+        let path = dir.path().join(name);
+        std::fs::write(&path, &bytes).unwrap();
+        let msg = anerf_data::formats::read_pickle(&path)
+            .unwrap_err()
+            .to_string();
+        assert!(
+            msg.contains(name) && msg.contains(&format!("memory cap of {cap} bytes")),
+            "{msg}"
+        );
+    }
 }

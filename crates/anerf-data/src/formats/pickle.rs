@@ -8,9 +8,13 @@
 //! refused with an error naming it. Hostile input gives an error, never a panic: every length is checked
 //! against the bytes left, the object graph lives in an arena indexed by the opcodes read (so it grows at
 //! most linearly in the input), and turning it into a [`Value`] tree is bounded in depth and total size, so
-//! shared or cyclic references cannot blow up.
+//! shared or cyclic references cannot blow up. All the memory it allocates (arena, stack, memo, decoded
+//! tree) is metered against a cap of [`MEMORY_FACTOR`] times the input plus [`MEMORY_SLACK`]
+//! ([`memory_cap`]), so one-byte opcodes that each add an object cannot make it hold gigabytes.
 
+use std::cell::Cell;
 use std::collections::HashMap;
+use std::mem::size_of;
 
 use thiserror::Error;
 
@@ -138,10 +142,33 @@ pub enum PickleError {
     TooDeep(usize),
     #[error("object graph expands beyond {0} bytes (shared references)")]
     TooLarge(usize),
+    #[error(
+        "unpickling would allocate more than its memory cap of {cap} bytes for a pickle of {input} bytes \
+         (real files need a few times their size: this one is hostile or corrupt)"
+    )]
+    MemoryCap { cap: usize, input: usize },
 }
 
-/// Parses one pickle.
+/// Parses one pickle within the memory cap [`memory_cap`] of its size.
 pub fn parse(bytes: &[u8]) -> Result<Value, PickleError> {
+    parse_within(bytes, memory_cap(bytes.len()))
+}
+
+/// The most memory (bytes) the unpickler may allocate for an input of `input_len` bytes.
+pub fn memory_cap(input_len: usize) -> usize {
+    MEMORY_FACTOR
+        .saturating_mul(input_len)
+        .saturating_add(MEMORY_SLACK)
+}
+
+/// Real files need a few times their size (a buffer, its array, the decoded copy); hostile ones that add an
+/// object per opcode would need about 170×.
+pub const MEMORY_FACTOR: usize = 16;
+pub const MEMORY_SLACK: usize = 64 << 20;
+
+/// Parses one pickle, allocating at most `cap` bytes (as metered: every buffer the machine and the decoded
+/// tree allocate); [`parse`] uses [`memory_cap`].
+pub fn parse_within(bytes: &[u8], cap: usize) -> Result<Value, PickleError> {
     let limit = OUTPUT_FACTOR
         .saturating_mul(bytes.len())
         .saturating_add(OUTPUT_SLACK);
@@ -152,6 +179,11 @@ pub fn parse(bytes: &[u8]) -> Result<Value, PickleError> {
         stack: Vec::new(),
         memo: HashMap::new(),
         built: Budget { left: limit, limit },
+        meter: Meter {
+            used: Cell::new(0),
+            cap,
+            input: bytes.len(),
+        },
     };
     let root = m.run()?;
     m.to_value(root, 0, &mut Budget { left: limit, limit })
@@ -232,7 +264,50 @@ struct Machine<'a> {
     /// What REDUCE and BUILD may materialise in total (decoded arrays, copied strings and item lists),
     /// so that many references to one large object cannot multiply it.
     built: Budget,
+    meter: Meter,
 }
+
+/// The memory allocated so far against the cap. Charges are never refunded: a growing buffer is charged in
+/// full each time, which also covers the moment its old and new copies coexist.
+struct Meter {
+    used: Cell<usize>,
+    cap: usize,
+    input: usize,
+}
+
+impl Meter {
+    fn charge(&self, bytes: usize) -> Result<(), PickleError> {
+        let used = self.used.get().saturating_add(bytes);
+        if used > self.cap {
+            return Err(PickleError::MemoryCap {
+                cap: self.cap,
+                input: self.input,
+            });
+        }
+        self.used.set(used);
+        Ok(())
+    }
+
+    /// Room in `v` for `extra` more items, doubling its buffer as `Vec` would, charged before allocating.
+    fn grow<T>(&self, v: &mut Vec<T>, extra: usize) -> Result<(), PickleError> {
+        let need = v.len().saturating_add(extra);
+        if need > v.capacity() {
+            let cap = need.max(2 * v.capacity()).max(4);
+            self.charge(cap.saturating_mul(size_of::<T>()))?;
+            v.reserve_exact(cap - v.len());
+        }
+        Ok(())
+    }
+
+    /// Charges `n` items of `T` about to be allocated in one buffer.
+    fn items<T>(&self, n: usize) -> Result<(), PickleError> {
+        self.charge(n.saturating_mul(size_of::<T>()))
+    }
+}
+
+/// Metered bytes of one memo entry: hashbrown keeps at most 7/8 of its power-of-two buckets full, each a
+/// `(u64, Id)` and a control byte.
+const MEMO_ENTRY_BYTES: usize = 40;
 
 struct Budget {
     left: usize,
@@ -298,18 +373,31 @@ impl<'a> Machine<'a> {
         Ok(s)
     }
 
-    fn alloc(&mut self, o: Obj) -> Id {
+    fn alloc(&mut self, o: Obj) -> Result<Id, PickleError> {
+        self.meter.grow(&mut self.arena, 1)?;
         self.arena.push(o);
-        self.arena.len() - 1
+        Ok(self.arena.len() - 1)
     }
 
-    fn push(&mut self, o: Obj) {
-        let id = self.alloc(o);
-        self.stack.push(Slot::Obj(id));
+    fn push_slot(&mut self, slot: Slot) -> Result<(), PickleError> {
+        self.meter.grow(&mut self.stack, 1)?;
+        self.stack.push(slot);
+        Ok(())
     }
 
-    fn push_leaf(&mut self, v: Value) {
-        self.push(Obj::Leaf(v));
+    fn push(&mut self, o: Obj) -> Result<(), PickleError> {
+        let id = self.alloc(o)?;
+        self.push_slot(Slot::Obj(id))
+    }
+
+    fn push_leaf(&mut self, v: Value) -> Result<(), PickleError> {
+        self.push(Obj::Leaf(v))
+    }
+
+    /// The next `n` input bytes as an owned buffer, charged first.
+    fn take_owned(&mut self, n: usize) -> Result<Vec<u8>, PickleError> {
+        self.meter.charge(n)?;
+        Ok(self.take(n)?.to_vec())
     }
 
     fn pop(&mut self) -> Result<Id, PickleError> {
@@ -334,6 +422,7 @@ impl<'a> Machine<'a> {
             .iter()
             .rposition(|s| matches!(s, Slot::Mark))
             .ok_or_else(|| self.malformed("no MARK on the stack"))?;
+        self.meter.items::<Id>(self.stack.len() - m - 1)?;
         let items = self.stack[m + 1..]
             .iter()
             .map(|s| match s {
@@ -365,12 +454,16 @@ impl<'a> Machine<'a> {
             .memo
             .get(&key)
             .ok_or_else(|| self.malformed(format!("memo key {key} not set")))?;
-        self.stack.push(Slot::Obj(id));
-        Ok(())
+        self.push_slot(Slot::Obj(id))
     }
 
     fn memo_put(&mut self, key: u64) -> Result<(), PickleError> {
         let id = self.top()?;
+        if self.memo.len() == self.memo.capacity() && !self.memo.contains_key(&key) {
+            let cap = (2 * self.memo.capacity()).max(16);
+            self.meter.charge(cap.saturating_mul(MEMO_ENTRY_BYTES))?;
+            self.memo.reserve(cap - self.memo.len());
+        }
         self.memo.insert(key, id);
         Ok(())
     }
@@ -384,6 +477,7 @@ impl<'a> Machine<'a> {
     fn append(&mut self, target: Id, items: Vec<Id>) -> Result<(), PickleError> {
         match &mut self.arena[target] {
             Obj::List(v) => {
+                self.meter.grow(v, items.len())?;
                 v.extend(items);
                 Ok(())
             }
@@ -397,6 +491,7 @@ impl<'a> Machine<'a> {
         }
         match &mut self.arena[target] {
             Obj::Dict(d) => {
+                self.meter.grow(d, items.len() / 2)?;
                 d.extend(items.chunks_exact(2).map(|kv| (kv[0], kv[1])));
                 Ok(())
             }
@@ -435,7 +530,7 @@ impl<'a> Machine<'a> {
                     self.le(8)?; // FRAME: a size hint only
                 }
                 b'.' => return self.pop(),
-                b'(' => self.stack.push(Slot::Mark),
+                b'(' => self.push_slot(Slot::Mark)?,
                 b'0' => {
                     if matches!(self.stack.last(), Some(Slot::Mark)) {
                         self.stack.pop();
@@ -448,11 +543,11 @@ impl<'a> Machine<'a> {
                 }
                 b'2' => {
                     let id = self.top()?;
-                    self.stack.push(Slot::Obj(id));
+                    self.push_slot(Slot::Obj(id))?;
                 }
-                b'N' => self.push_leaf(Value::None),
-                0x88 => self.push_leaf(Value::Bool(true)),
-                0x89 => self.push_leaf(Value::Bool(false)),
+                b'N' => self.push_leaf(Value::None)?,
+                0x88 => self.push_leaf(Value::Bool(true))?,
+                0x89 => self.push_leaf(Value::Bool(false))?,
                 b'I' => {
                     let line = self.line()?.trim();
                     let v = match line {
@@ -460,24 +555,24 @@ impl<'a> Machine<'a> {
                         "00" => Value::Bool(false),
                         s => Value::Int(s.parse().map_err(|_| self.malformed("bad INT"))?),
                     };
-                    self.push_leaf(v);
+                    self.push_leaf(v)?;
                 }
                 b'L' => {
                     let line = self.line()?.trim().trim_end_matches('L');
                     let v = line.parse().map_err(|_| self.malformed("bad LONG"))?;
-                    self.push_leaf(Value::Int(v));
+                    self.push_leaf(Value::Int(v))?;
                 }
                 b'J' => {
                     let v = self.le(4)? as u32 as i32 as i64;
-                    self.push_leaf(Value::Int(v));
+                    self.push_leaf(Value::Int(v))?;
                 }
                 b'K' => {
                     let v = self.u8()? as i64;
-                    self.push_leaf(Value::Int(v));
+                    self.push_leaf(Value::Int(v))?;
                 }
                 b'M' => {
                     let v = self.le(2)? as i64;
-                    self.push_leaf(Value::Int(v));
+                    self.push_leaf(Value::Int(v))?;
                 }
                 0x8a | 0x8b => {
                     let n = if op == 0x8a {
@@ -487,17 +582,17 @@ impl<'a> Machine<'a> {
                     };
                     let bytes = self.take(n)?;
                     let v = self.int(bytes)?;
-                    self.push_leaf(Value::Int(v));
+                    self.push_leaf(Value::Int(v))?;
                 }
                 b'G' => {
                     let b = self.take(8)?;
                     let v = f64::from_be_bytes(b.try_into().expect("8 bytes"));
-                    self.push_leaf(Value::Float(v));
+                    self.push_leaf(Value::Float(v))?;
                 }
                 b'F' => {
                     let line = self.line()?.trim();
                     let v = line.parse().map_err(|_| self.malformed("bad FLOAT"))?;
-                    self.push_leaf(Value::Float(v));
+                    self.push_leaf(Value::Float(v))?;
                 }
                 b'X' | 0x8c | 0x8d => {
                     let n = match op {
@@ -505,9 +600,10 @@ impl<'a> Machine<'a> {
                         0x8c => self.len_prefix(1)?,
                         _ => self.len_prefix(8)?,
                     };
+                    self.meter.charge(n)?;
                     let bytes = self.take(n)?;
                     let s = self.string(bytes)?;
-                    self.push_leaf(Value::Str(s));
+                    self.push_leaf(Value::Str(s))?;
                 }
                 b'T' | b'U' | b'B' | b'C' | 0x8e | 0x96 => {
                     let n = match op {
@@ -515,26 +611,26 @@ impl<'a> Machine<'a> {
                         b'U' | b'C' => self.len_prefix(1)?,
                         _ => self.len_prefix(8)?,
                     };
-                    let bytes = self.take(n)?.to_vec();
-                    self.push_leaf(Value::Bytes(bytes));
+                    let bytes = self.take_owned(n)?;
+                    self.push_leaf(Value::Bytes(bytes))?;
                 }
-                b'}' => self.push(Obj::Dict(Vec::new())),
-                b']' => self.push(Obj::List(Vec::new())),
-                b')' => self.push(Obj::Tuple(Vec::new())),
-                0x8f => self.push(Obj::List(Vec::new())), // EMPTY_SET, read as a list
+                b'}' => self.push(Obj::Dict(Vec::new()))?,
+                b']' => self.push(Obj::List(Vec::new()))?,
+                b')' => self.push(Obj::Tuple(Vec::new()))?,
+                0x8f => self.push(Obj::List(Vec::new()))?, // EMPTY_SET, read as a list
                 b'd' => {
                     let items = self.pop_mark()?;
-                    let id = self.alloc(Obj::Dict(Vec::new()));
+                    let id = self.alloc(Obj::Dict(Vec::new()))?;
                     self.set_items(id, items)?;
-                    self.stack.push(Slot::Obj(id));
+                    self.push_slot(Slot::Obj(id))?;
                 }
                 b'l' | 0x91 => {
                     let items = self.pop_mark()?;
-                    self.push(Obj::List(items));
+                    self.push(Obj::List(items))?;
                 }
                 b't' => {
                     let items = self.pop_mark()?;
-                    self.push(Obj::Tuple(items));
+                    self.push(Obj::Tuple(items))?;
                 }
                 0x85..=0x87 => {
                     let n = (op - 0x84) as usize;
@@ -546,7 +642,7 @@ impl<'a> Machine<'a> {
                         items.push(self.pop()?);
                     }
                     items.reverse();
-                    self.push(Obj::Tuple(items));
+                    self.push(Obj::Tuple(items))?;
                 }
                 b'a' => {
                     let v = self.pop()?;
@@ -581,7 +677,7 @@ impl<'a> Machine<'a> {
                     let module = self.line()?.to_string();
                     let name = self.line()?.to_string();
                     let g = Global::resolve(&module, &name)?;
-                    self.push(Obj::Global(g));
+                    self.push(Obj::Global(g))?;
                 }
                 0x93 => {
                     let name = self.pop()?;
@@ -592,14 +688,15 @@ impl<'a> Machine<'a> {
                         return Err(self.malformed("STACK_GLOBAL needs two strings"));
                     };
                     let g = Global::resolve(module, name)?;
-                    self.push(Obj::Global(g));
+                    self.push(Obj::Global(g))?;
                 }
                 b'R' => {
                     let args = self.pop()?;
                     let callable = self.pop()?;
                     let obj = self.reduce(callable, args)?;
                     self.built.take(obj_size(&obj))?;
-                    self.push(obj);
+                    self.meter.charge(obj_size(&obj))?;
+                    self.push(obj)?;
                 }
                 b'b' => {
                     let state = self.pop()?;
@@ -652,7 +749,10 @@ impl<'a> Machine<'a> {
 
     fn shape(&self, id: Id) -> Result<Vec<usize>, PickleError> {
         let dims = match &self.arena[id] {
-            Obj::Tuple(v) | Obj::List(v) => v.clone(),
+            Obj::Tuple(v) | Obj::List(v) => {
+                self.meter.items::<usize>(2 * v.len())?;
+                v.clone()
+            }
             _ => return Err(self.malformed("array shape: expected a tuple")),
         };
         let shape = dims
@@ -724,7 +824,11 @@ impl<'a> Machine<'a> {
                             .map_err(|e| self.malformed(e))?;
                         Ok(Obj::Leaf(Value::Array(a)))
                     }
-                    Descr::Object => Ok(self.arena[arg(1)?].clone()),
+                    Descr::Object => {
+                        let object = &self.arena[arg(1)?];
+                        self.meter.charge(obj_size(object))?;
+                        Ok(object.clone())
+                    }
                     // A numpy string scalar (`np.str_`, `np.bytes_`) is just its string.
                     _ => {
                         let chunk = self.bytes(arg(1)?, "numpy scalar")?;
@@ -791,6 +895,7 @@ impl<'a> Machine<'a> {
             )));
         }
         // Strings are leaves; store them inline as a finished object array value.
+        self.meter.items::<Value>(count)?;
         let values = bytes
             .chunks(size)
             .take(count)
@@ -843,7 +948,10 @@ impl<'a> Machine<'a> {
                 let fortran = matches!(self.leaf(fortran), Some(Value::Bool(true)));
                 let obj = if descr == Descr::Object {
                     let items = match &self.arena[data] {
-                        Obj::List(v) => v.clone(),
+                        Obj::List(v) => {
+                            self.meter.items::<Id>(v.len())?;
+                            v.clone()
+                        }
                         _ => return Err(self.malformed("object array state: expected a list")),
                     };
                     let count = element_count(&shape).unwrap_or(usize::MAX);
@@ -859,7 +967,10 @@ impl<'a> Machine<'a> {
                     Obj::Objects { shape, items }
                 } else {
                     let bytes = match self.leaf(data) {
-                        Some(Value::Bytes(b)) => b.clone(),
+                        Some(Value::Bytes(b)) => {
+                            self.meter.charge(b.len())?;
+                            b.clone()
+                        }
                         Some(Value::Str(s)) => {
                             latin1(s).ok_or_else(|| self.malformed("array data beyond Latin-1"))?
                         }
@@ -868,6 +979,7 @@ impl<'a> Machine<'a> {
                     self.array(descr, shape, fortran, &bytes)?
                 };
                 self.built.take(obj_size(&obj))?;
+                self.meter.charge(obj_size(&obj))?;
                 self.arena[target] = obj;
                 Ok(())
             }
@@ -908,27 +1020,32 @@ impl<'a> Machine<'a> {
         }
         budget.take(16)?;
         let seq = |ids: &[Id], budget: &mut Budget| {
-            ids.iter()
-                .map(|&i| self.to_value(i, depth + 1, budget))
-                .collect::<Result<Vec<_>, _>>()
+            self.meter.items::<Value>(ids.len())?;
+            let mut out = Vec::with_capacity(ids.len());
+            for &i in ids {
+                out.push(self.to_value(i, depth + 1, budget)?);
+            }
+            Ok::<_, PickleError>(out)
         };
         Ok(match &self.arena[id] {
             Obj::Leaf(v) => {
                 budget.take(leaf_size(v))?;
+                self.meter.charge(leaf_size(v))?;
                 v.clone()
             }
             Obj::List(v) => Value::List(seq(v, budget)?),
             Obj::Tuple(v) => Value::Tuple(seq(v, budget)?),
-            Obj::Dict(d) => Value::Dict(
-                d.iter()
-                    .map(|&(k, v)| {
-                        Ok((
-                            self.to_value(k, depth + 1, budget)?,
-                            self.to_value(v, depth + 1, budget)?,
-                        ))
-                    })
-                    .collect::<Result<Vec<_>, PickleError>>()?,
-            ),
+            Obj::Dict(d) => {
+                self.meter.items::<(Value, Value)>(d.len())?;
+                let mut entries = Vec::with_capacity(d.len());
+                for &(k, v) in d {
+                    entries.push((
+                        self.to_value(k, depth + 1, budget)?,
+                        self.to_value(v, depth + 1, budget)?,
+                    ));
+                }
+                Value::Dict(entries)
+            }
             Obj::Objects { shape, items } => Value::ObjectArray {
                 shape: shape.clone(),
                 items: seq(items, budget)?,
@@ -949,7 +1066,9 @@ fn latin1(text: &str) -> Option<Vec<u8>> {
 fn obj_size(o: &Obj) -> usize {
     match o {
         Obj::Leaf(v) => leaf_size(v),
-        Obj::Objects { items, .. } => 8 * items.len(),
+        Obj::List(ids) | Obj::Tuple(ids) => size_of::<Id>() * ids.len(),
+        Obj::Dict(d) => size_of::<(Id, Id)>() * d.len(),
+        Obj::Objects { items, .. } => size_of::<Id>() * items.len(),
         Obj::Dtype { typestr, .. } => typestr.len(),
         _ => 0,
     }
@@ -1032,6 +1151,27 @@ mod tests {
         let v = parse(&three).unwrap();
         assert_eq!(v.as_seq().map(<[Value]>::len), Some(3));
         assert_eq!(v.as_seq().unwrap()[2].as_array().unwrap().shape(), &[n]);
+    }
+
+    #[test]
+    fn the_memory_cap_stops_an_object_per_opcode() {
+        // 100 000 empty lists left on the stack (STOP returns the last), or each memoised as well.
+        let n = 100_000;
+        for unit in [&b"]"[..], b"]\x94"] {
+            let p = [&b"\x80\x02"[..], &unit.repeat(n), b"."].concat();
+            assert_eq!(parse(&p), Ok(Value::List(vec![])), "within the default cap");
+            let cap = 1 << 20;
+            assert_eq!(
+                parse_within(&p, cap),
+                Err(PickleError::MemoryCap {
+                    cap,
+                    input: p.len()
+                })
+            );
+        }
+        // A list of those lists decodes within the default cap.
+        let p = [&b"\x80\x02("[..], &b"]".repeat(n), b"l."].concat();
+        assert_eq!(parse(&p).unwrap().as_seq().map(<[Value]>::len), Some(n));
     }
 
     #[test]
