@@ -96,14 +96,7 @@ pub fn inspect(root: &Path, options: &InspectOptions) -> Report {
     };
     match subject {
         Some(s) => {
-            let mut sizes: Vec<((u32, u32), usize)> = Vec::new();
-            for c in &s.cameras {
-                match sizes.iter_mut().find(|(d, _)| *d == (c.width, c.height)) {
-                    Some((_, n)) => *n += 1,
-                    None => sizes.push(((c.width, c.height), 1)),
-                }
-            }
-            report.image_sizes = sizes;
+            report.image_sizes = loaders::tally(s.cameras.iter().map(|c| (c.width, c.height)));
             report.split = reference_split(kind, &s.name, s.cameras.len(), s.frames.len());
             report.name = Some(s.name);
             report.cameras = Some(s.cameras.len());

@@ -2,8 +2,11 @@
 
 mod common;
 
+use std::path::Path;
+
+use anerf_data::formats::{self, NpyArray, NpyData};
 use anerf_data::{inspect, DatasetKind, InspectOptions, LoadOptions};
-use common::{copy_tree, fixture};
+use common::{copy_tree, cut_file, fixture};
 
 #[test]
 fn summaries_of_the_fake_datasets() {
@@ -119,4 +122,87 @@ fn a_folder_without_annots_reports_that_and_still_checks_lbs() {
         "{text}"
     );
     assert_eq!(r.problems.iter().filter(|p| p.fatal).count(), 2, "{text}");
+}
+
+/// A `rows × 3` float32 `.npy` file, with NaN as its first value when `nan`.
+fn write_points(path: &Path, rows: usize, nan: bool) {
+    let mut data = vec![0.5f32; rows * 3];
+    if nan {
+        data[0] = f32::NAN;
+    }
+    formats::write_npy(
+        path,
+        &NpyArray::new(vec![rows, 3], NpyData::F32(data)).unwrap(),
+    )
+    .unwrap();
+}
+
+/// One defect in each file, none of which may hide another: a NaN camera and two refused image paths in
+/// annots.npy, bad skinning weights, a pose with NaN, posed vertices of random bytes, NaN and the wrong
+/// row count, a cut JPEG, a cut mask and a mask of another size.
+#[test]
+fn independent_problems_in_every_file_are_reported_in_one_run() {
+    let dir = tempfile::tempdir().unwrap();
+    let root = dir.path().join("CoreView_377");
+    copy_tree(&fixture("zju_mocap/CoreView_377"), &root);
+    let copy = |bad: &str, rel: &str| std::fs::copy(fixture(bad), root.join(rel)).unwrap();
+    copy("bad/annots_nan_camera_and_bad_paths.npy", "annots.npy");
+    copy("bad/weights_wrong_rows.npy", "lbs/weights.npy");
+    copy("bad/params_nan.npy", "params/1.npy");
+    std::fs::write(root.join("vertices/1.npy"), [0x5a, 0x93, 0x07, 0xee, 0x41]).unwrap();
+    write_points(&root.join("vertices/2.npy"), 40, true);
+    write_points(&root.join("vertices/3.npy"), 39, false);
+    cut_file(&root.join("Camera_B2/000001.jpg"), |n| n / 2);
+    cut_file(&root.join("mask_cihp/Camera_B3/000002.png"), |n| n - 12);
+    image::GrayImage::new(50, 40)
+        .save(root.join("mask_cihp/Camera_B4/000002.png"))
+        .unwrap();
+    let r = inspect(&root, &InspectOptions::default());
+    let text = r.to_string();
+    let expected: [&[&str]; 11] = [
+        &["annots.npy", "cams['K'][1] is not finite"],
+        &["annots.npy", "../outside/000002.jpg", "frame 2, camera 1"],
+        &["annots.npy", "/etc/passwd", "frame 3, camera 3"],
+        &["lbs/weights.npy", "expected (40, 5)"],
+        &["params/1.npy", "non-finite"],
+        &["vertices/1.npy", "magic"],
+        &["vertices/2.npy", "non-finite"],
+        &["vertices/3.npy", "39 vertices, expected 40"],
+        &["Camera_B2/000001.jpg", "cut short"],
+        &["mask_cihp/Camera_B3/000002.png", "cut short"],
+        &["mask_cihp/Camera_B4/000002.png", "mask is 50×40", "48×40"],
+    ];
+    for needles in expected {
+        assert!(
+            r.problems
+                .iter()
+                .any(|p| p.fatal && needles.iter().all(|n| p.to_string().contains(n))),
+            "no problem with {needles:?}:\n{text}"
+        );
+    }
+    assert_eq!(
+        r.problems.iter().filter(|p| p.fatal).count(),
+        expected.len(),
+        "{text}"
+    );
+}
+
+/// The camera's size is what most of its images have, so the odd image is blamed even when it comes first.
+#[test]
+fn an_odd_first_image_is_blamed_not_the_cameras_other_images() {
+    let dir = tempfile::tempdir().unwrap();
+    let root = dir.path().join("CoreView_377");
+    copy_tree(&fixture("zju_mocap/CoreView_377"), &root);
+    let odd = root.join("Camera_B3/000000.jpg");
+    image::RgbImage::new(50, 40).save(&odd).unwrap();
+    let r = inspect(&root, &InspectOptions::default());
+    let fatal: Vec<_> = r.problems.iter().filter(|p| p.fatal).collect();
+    assert_eq!(fatal.len(), 1, "{r}");
+    assert_eq!(fatal[0].path, odd, "{r}");
+    assert!(
+        fatal[0].message.contains("50×40") && fatal[0].message.contains("48×40"),
+        "{r}"
+    );
+    let err = anerf_data::load_zju_mocap(&root, &LoadOptions::default()).unwrap_err();
+    assert_eq!(err.path(), odd, "{err}");
 }

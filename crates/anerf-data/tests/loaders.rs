@@ -294,3 +294,50 @@ fn each_bad_input_gives_one_error_naming_the_file_and_the_expectation() {
         }
     }
 }
+
+/// A symbolic link out of the dataset folder is refused like a `..` path, by loading and by inspection,
+/// naming the link; the error never shows the target's content.
+#[test]
+fn symlinks_that_leave_the_dataset_folder_are_refused() {
+    let dir = tempfile::tempdir().unwrap();
+    let root = dir.path().join("CoreView_377");
+    copy_tree(&fixture("zju_mocap/CoreView_377"), &root);
+    // A valid image outside (so only the link is wrong), and a private file a mask link points to.
+    let outside_image = dir.path().join("elsewhere.jpg");
+    std::fs::copy(root.join("Camera_B1/000001.jpg"), &outside_image).unwrap();
+    let secret = dir.path().join("secret.txt");
+    std::fs::write(&secret, "SECRET-CONTENT").unwrap();
+    let cases = [
+        ("Camera_B1/000001.jpg", &outside_image),
+        ("mask_cihp/Camera_B2/000003.png", &secret),
+    ];
+    for (rel, target) in cases {
+        let link = root.join(rel);
+        std::fs::remove_file(&link).unwrap();
+        std::os::unix::fs::symlink(target, &link).unwrap();
+    }
+    let err = load_zju_mocap(&root, &LoadOptions::default()).unwrap_err();
+    assert_eq!(err.path(), root.join(cases[0].0), "{err}");
+    let report = anerf_data::inspect(&root, &Default::default());
+    let text = report.to_string();
+    for (rel, target) in cases {
+        let problem = report
+            .problems
+            .iter()
+            .find(|p| p.path == root.join(rel))
+            .unwrap_or_else(|| panic!("{rel} not reported:\n{text}"));
+        assert!(
+            problem.fatal
+                && problem.message.contains("symbolic link")
+                && problem.message.contains("outside the dataset folder")
+                && problem.message.contains(&target.display().to_string()),
+            "{problem}"
+        );
+    }
+    assert!(!text.contains("SECRET"), "{text}");
+    assert_eq!(
+        report.problems.iter().filter(|p| p.fatal).count(),
+        2,
+        "{text}"
+    );
+}

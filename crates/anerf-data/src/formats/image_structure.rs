@@ -18,7 +18,7 @@ pub enum Damage {
     JpegSegmentLength { at: usize, length: usize },
     #[error("the end-of-image marker comes before any scan data: the file holds no image")]
     JpegNoScan,
-    #[error("the file ends at byte {len} inside the chunk at byte {at}, before the IEND chunk: it is cut short")]
+    #[error("the file ends at byte {len}, before the end of the chunk at byte {at} and the IEND chunk: it is cut short")]
     PngTruncated { len: usize, at: usize },
     #[error("chunk {chunk:?} at byte {at} fails its CRC check: the file is damaged")]
     PngCrc { chunk: String, at: usize },

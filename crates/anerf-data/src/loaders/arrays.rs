@@ -84,11 +84,11 @@ pub(crate) fn field<'a>(dict: &'a Value, key: &str, path: &Path) -> Result<&'a N
     })
 }
 
-/// Integer triangles `F × 3` with every index below `num_vertices`.
+/// Integer triangles `F × 3` with every index below `num_vertices` (when known).
 pub(crate) fn faces(
     arr: &NdArray,
     path: &Path,
-    num_vertices: usize,
+    num_vertices: Option<usize>,
 ) -> Result<Vec<[u32; 3]>, DataError> {
     let ints = arr
         .to_i64()
@@ -102,10 +102,14 @@ pub(crate) fn faces(
             ),
         ));
     }
-    if let Some(bad) = ints.iter().find(|&&i| i < 0 || i as usize >= num_vertices) {
+    let limit = num_vertices.unwrap_or(u32::MAX as usize);
+    if let Some(bad) = ints.iter().find(|&&i| i < 0 || i as usize >= limit) {
         return Err(DataError::invalid(
             path,
-            format!("face index {bad} is outside the {num_vertices} vertices"),
+            match num_vertices {
+                Some(n) => format!("face index {bad} is outside the {n} vertices"),
+                None => format!("face index {bad} is not a vertex index"),
+            },
         ));
     }
     Ok(ints

@@ -29,6 +29,7 @@ pub const MAX_LISTED: usize = 200;
 /// Fails fast (loading) or collects (inspection).
 pub(crate) struct Checker {
     collect: bool,
+    whole_files: bool,
     pub problems: Vec<Problem>,
     pub notes: Vec<String>,
     unlisted: usize,
@@ -38,17 +39,26 @@ impl Checker {
     pub fn fail_fast() -> Self {
         Self {
             collect: false,
+            whole_files: false,
             problems: Vec::new(),
             notes: Vec::new(),
             unlisted: 0,
         }
     }
 
+    /// Collects every problem, and reads every file whole (images and masks checked for truncation,
+    /// posed vertices for their values), where loading reads headers only and leaves the rest to `prepare`.
     pub fn collecting() -> Self {
         Self {
             collect: true,
+            whole_files: true,
             ..Self::fail_fast()
         }
+    }
+
+    /// Whether files the loader only names are read in full to check them.
+    pub fn whole_files(&self) -> bool {
+        self.whole_files
     }
 
     /// Passes a success through; a failure is returned (fail-fast) or recorded as `Ok(None)` (collecting).

@@ -5,6 +5,7 @@
 use std::path::Path;
 
 use anerf_core::geometry::Skeleton;
+use glam::Vec3;
 
 use super::arrays::{faces, field, finite, points};
 use super::check::Checker;
@@ -12,29 +13,54 @@ use crate::error::DataError;
 use crate::formats::{self, NdArray, Value};
 use crate::subject::{BodyModel, SkinningWeights};
 
-/// Reads the body model of the dataset at `root`. `None` only when collecting problems.
+/// What could be read of a body model; each file is checked on its own, so one bad file hides no other.
+pub(crate) struct BodyParts {
+    pub skeleton: Option<Skeleton>,
+    pub canonical_vertices: Option<Vec<Vec3>>,
+    pub weights: Option<SkinningWeights>,
+    pub faces: Option<Vec<[u32; 3]>>,
+}
+
+impl BodyParts {
+    /// The body model, when every part was read.
+    pub fn complete(self) -> Option<BodyModel> {
+        Some(BodyModel {
+            skeleton: self.skeleton?,
+            canonical_vertices: self.canonical_vertices?,
+            weights: self.weights?,
+            faces: self.faces?,
+        })
+    }
+}
+
+/// Reads the body model of the dataset at `root`, recording each part's problem (collecting) or returning
+/// the first (fail-fast).
 pub(crate) fn read_body(
     root: &Path,
     body_model: Option<&Path>,
     ck: &mut Checker,
-) -> Result<Option<BodyModel>, DataError> {
+) -> Result<BodyParts, DataError> {
     let lbs = root.join("lbs");
     let skeleton = ck.check(read_skeleton(&lbs))?;
     let tpath = lbs.join("tvertices.npy");
-    let tverts =
+    let canonical_vertices =
         ck.check(formats::read_npy(&tpath).and_then(|a| points(&a, &tpath, "tvertices")))?;
-    let mesh = match (&skeleton, &tverts) {
-        (Some(s), Some(v)) => ck.check(read_mesh(&lbs, body_model, s.num_joints(), v.len()))?,
-        _ => None,
+    let joints = skeleton.as_ref().map(Skeleton::num_joints);
+    let vertices = canonical_vertices.as_ref().map(Vec::len);
+    let (wpath, fpath) = (lbs.join("weights.npy"), lbs.join("faces.npy"));
+    let (weights, faces) = if wpath.is_file() && fpath.is_file() {
+        let w = formats::read_npy(&wpath).and_then(|w| weights(&w, &wpath, joints, vertices));
+        let f = formats::read_npy(&fpath).and_then(|f| faces(&f, &fpath, vertices));
+        (ck.check(w)?, ck.check(f)?)
+    } else {
+        let mesh = read_mesh_file(&wpath, body_model, joints, vertices);
+        ck.check(mesh)?.unzip()
     };
-    Ok(match (skeleton, tverts, mesh) {
-        (Some(skeleton), Some(canonical_vertices), Some((weights, faces))) => Some(BodyModel {
-            skeleton,
-            canonical_vertices,
-            faces,
-            weights,
-        }),
-        _ => None,
+    Ok(BodyParts {
+        skeleton,
+        canonical_vertices,
+        weights,
+        faces,
     })
 }
 
@@ -60,35 +86,29 @@ fn read_skeleton(lbs: &Path) -> Result<Skeleton, DataError> {
         .map_err(|e| DataError::invalid(&ppath, e.to_string()))
 }
 
-/// Weights (`V × K`) and faces, from `lbs/` when both files exist, else from the named body-model file.
-fn read_mesh(
-    lbs: &Path,
+/// Weights (`V × K`) and faces from the body-model file named in the options, when `lbs/` lacks them.
+fn read_mesh_file(
+    wpath: &Path,
     body_model: Option<&Path>,
-    num_joints: usize,
-    num_vertices: usize,
+    joints: Option<usize>,
+    vertices: Option<usize>,
 ) -> Result<(SkinningWeights, Vec<[u32; 3]>), DataError> {
-    let (wpath, fpath) = (lbs.join("weights.npy"), lbs.join("faces.npy"));
-    if wpath.is_file() && fpath.is_file() {
-        let w = formats::read_npy(&wpath)?;
-        let f = formats::read_npy(&fpath)?;
-        return Ok((
-            weights(&w, &wpath, num_joints, num_vertices)?,
-            faces(&f, &fpath, num_vertices)?,
-        ));
-    }
     let Some(model) = body_model else {
+        let shape = |n: Option<usize>| n.map_or("…".to_string(), |n| n.to_string());
         return Err(DataError::Missing {
-            path: wpath,
+            path: wpath.to_path_buf(),
             what: format!(
                 "lbs/weights.npy and lbs/faces.npy, or a body-model file (SMPL .npz or .pkl with 'weights' \
-                 ({num_vertices}, {num_joints}) and 'f') named in the options"
+                 ({}, {}) and 'f') named in the options",
+                shape(vertices),
+                shape(joints)
             ),
         });
     };
     let (w, f) = read_body_model_file(model)?;
     Ok((
-        weights(&w, model, num_joints, num_vertices)?,
-        faces(&f, model, num_vertices)?,
+        weights(&w, model, joints, vertices)?,
+        faces(&f, model, vertices)?,
     ))
 }
 
@@ -122,18 +142,14 @@ pub fn read_body_model_file(path: &Path) -> Result<(NdArray, NdArray), DataError
     }
 }
 
+/// `V × K` weights; a count left `None` (its own file was unreadable) is taken as stored.
 fn weights(
     arr: &NdArray,
     path: &Path,
-    num_joints: usize,
-    num_vertices: usize,
+    num_joints: Option<usize>,
+    num_vertices: Option<usize>,
 ) -> Result<SkinningWeights, DataError> {
-    let v = finite(
-        arr,
-        path,
-        "weights",
-        &[Some(num_vertices), Some(num_joints)],
-    )?;
-    SkinningWeights::new(v.into_iter().map(|x| x as f32).collect(), num_joints)
+    let v = finite(arr, path, "weights", &[num_vertices, num_joints])?;
+    SkinningWeights::new(v.into_iter().map(|x| x as f32).collect(), arr.shape()[1])
         .map_err(|e| DataError::invalid(path, e))
 }

@@ -12,10 +12,15 @@ use crate::formats;
 /// A pose file of the `params/{i}.npy` format: `poses` (3·K numbers, axis-angle, radians), `Rh`
 /// (axis-angle) and `Th` (metres) of the pose → world transform. Other keys (`shapes`) are ignored.
 pub fn read_pose_file(path: &Path, num_joints: usize) -> Result<Pose, DataError> {
+    read_pose(path, Some(num_joints))
+}
+
+/// [`read_pose_file`], or with `num_joints` unknown (`lbs/joints.npy` unreadable) any whole number of joints.
+pub(crate) fn read_pose(path: &Path, num_joints: Option<usize>) -> Result<Pose, DataError> {
     let v = formats::read_npy_object(path)?;
-    let flat = |key: &str, n: usize, hint: &str| -> Result<Vec<f64>, DataError> {
+    let flat = |key: &str, n: Option<usize>, hint: &str| -> Result<Vec<f64>, DataError> {
         let a = field(&v, key, path)?;
-        if a.len() != n {
+        if let Some(n) = n.filter(|&n| a.len() != n) {
             return Err(DataError::invalid(
                 path,
                 format!(
@@ -34,11 +39,13 @@ pub fn read_pose_file(path: &Path, num_joints: usize) -> Result<Pose, DataError>
     };
     let poses = flat(
         "poses",
-        3 * num_joints,
-        &format!(" (3 per joint, {num_joints} joints in lbs/joints.npy)"),
+        num_joints.map(|k| 3 * k),
+        &num_joints.map_or(String::new(), |k| {
+            format!(" (3 per joint, {k} joints in lbs/joints.npy)")
+        }),
     )?;
-    let rh = flat("Rh", 3, "")?;
-    let th = flat("Th", 3, "")?;
+    let rh = flat("Rh", Some(3), "")?;
+    let th = flat("Th", Some(3), "")?;
     let f32s = |v: &[f64]| v.iter().map(|&x| x as f32).collect::<Vec<f32>>();
     let a3 = |v: &[f64]| std::array::from_fn(|i| v[i] as f32);
     Pose::from_flat(&f32s(&poses), a3(&rh), a3(&th))

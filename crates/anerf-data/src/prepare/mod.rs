@@ -311,7 +311,10 @@ pub fn prepare(subject: &Subject, options: &PrepareOptions) -> Result<PreparedSu
     let mut entries = Vec::with_capacity(frames.len());
     for &f in &frames {
         let rec = &subject.frames[f];
-        let world = read_vertices(&rec.vertices, body.canonical_vertices.len())?;
+        let world = crate::loaders::read_posed_vertices(
+            &rec.vertices,
+            Some(body.canonical_vertices.len()),
+        )?;
         let pose_space: Vec<Vec3> = world
             .iter()
             .map(|&x| rec.pose.global.world_to_pose(x))
@@ -467,22 +470,6 @@ fn check_size(path: &Path, (w, h): (u32, u32), cam: &Camera) -> Result<(), DataE
         ));
     }
     Ok(())
-}
-
-/// Posed world vertices of a frame (`new_vertices/{i}.npy`, `V × 3` metres).
-fn read_vertices(path: &Path, expected: usize) -> Result<Vec<Vec3>, DataError> {
-    let arr = formats::read_npy(path)?;
-    let v = crate::loaders::finite_points(&arr, path, "vertices")?;
-    if v.len() != expected {
-        return Err(DataError::invalid(
-            path,
-            format!(
-                "holds {} vertices, expected {expected} like lbs/tvertices.npy",
-                v.len()
-            ),
-        ));
-    }
-    Ok(v)
 }
 
 /// A reference volume file (`(Nx, Ny, Nz, K+1)` float32) with the reference's lookup bounds: the box of

@@ -1,0 +1,222 @@
+//! The image and mask files a dataset names: inside the dataset folder (symbolic links included), readable
+//! (whole, when inspecting), and of one size per camera. Files are read in parallel; their problems are
+//! recorded in a fixed order.
+
+use std::path::{Path, PathBuf};
+
+use rayon::prelude::*;
+
+use super::annots::{FramePaths, RawCamera};
+use super::check::Checker;
+use crate::error::DataError;
+use crate::formats::images;
+use crate::subject::DatasetKind;
+
+/// Width and height in pixels.
+pub(super) type Size = (u32, u32);
+
+/// The dataset folder as resolved on disk, for checking where files really lie.
+pub(super) struct Inside {
+    root: PathBuf,
+}
+
+impl Inside {
+    pub fn new(root: &Path) -> Self {
+        Self {
+            root: root.canonicalize().unwrap_or_else(|_| root.to_path_buf()),
+        }
+    }
+
+    /// Refuses a file that resolves outside the folder, as `..` in a path is refused; names where it
+    /// leads, never what it holds. A file that does not exist is left for its reader to report.
+    pub fn check(&self, path: &Path) -> Result<(), DataError> {
+        match path.canonicalize() {
+            Ok(real) if !real.starts_with(&self.root) => Err(DataError::invalid(
+                path,
+                format!(
+                    "leads through a symbolic link to {}, outside the dataset folder {}; dataset files \
+                     must lie inside it",
+                    real.display(),
+                    self.root.display()
+                ),
+            )),
+            _ => Ok(()),
+        }
+    }
+}
+
+/// Each distinct item and how often it occurs, in order of first occurrence.
+pub(crate) fn tally<T: PartialEq>(items: impl IntoIterator<Item = T>) -> Vec<(T, usize)> {
+    let mut counts: Vec<(T, usize)> = Vec::new();
+    for item in items {
+        match counts.iter_mut().find(|(seen, _)| *seen == item) {
+            Some((_, n)) => *n += 1,
+            None => counts.push((item, 1)),
+        }
+    }
+    counts
+}
+
+/// Every accepted entry of every usable frame as `(camera, file)`, frame by frame.
+fn by_camera<T>(
+    frames: &[Option<Vec<Option<T>>>],
+    file: impl Fn(&T) -> PathBuf,
+) -> Vec<(usize, PathBuf)> {
+    frames
+        .iter()
+        .flatten()
+        .flat_map(|frame| {
+            frame
+                .iter()
+                .enumerate()
+                .filter_map(|(c, entry)| Some((c, file(entry.as_ref()?))))
+        })
+        .collect()
+}
+
+/// The size of each file, checked to lie inside the folder; whole-file reads also find truncation.
+fn read_sizes(
+    inside: &Inside,
+    paths: &[(usize, PathBuf)],
+    ck: &Checker,
+) -> Vec<Result<Size, DataError>> {
+    let whole = ck.whole_files();
+    paths
+        .par_iter()
+        .map(|(_, path)| {
+            inside.check(path)?;
+            if whole {
+                images::whole_image_size(path)
+            } else {
+                images::image_size(path)
+            }
+        })
+        .collect()
+}
+
+/// Every listed image's size, and each camera's: the size most of its images have (on a tie, the one its
+/// principal point centres best). Unreadable images and those of another size are the problems.
+pub(super) fn check_images(
+    root: &Path,
+    inside: &Inside,
+    raw: &[Option<RawCamera>],
+    ims: &[Option<FramePaths>],
+    ck: &mut Checker,
+) -> Result<Vec<Option<Size>>, DataError> {
+    let paths = by_camera(ims, |p| root.join(p));
+    let mut seen: Vec<Vec<(PathBuf, Size)>> = raw.iter().map(|_| Vec::new()).collect();
+    for ((c, path), size) in paths.iter().zip(read_sizes(inside, &paths, ck)) {
+        if let Some(size) = ck.check(size)? {
+            seen[*c].push((path.clone(), size));
+        }
+    }
+    seen.iter()
+        .zip(raw)
+        .enumerate()
+        .map(|(c, (seen, raw))| {
+            let Some(size) = camera_size(seen, raw.as_ref()) else {
+                return Ok(None);
+            };
+            for (path, (w, h)) in seen.iter().filter(|(_, s)| *s != size) {
+                ck.check::<()>(Err(DataError::invalid(
+                    path,
+                    format!(
+                        "image is {w}×{h}, but most of camera {c}'s images are {}×{}; a camera's images \
+                         must share one size",
+                        size.0, size.1
+                    ),
+                )))?;
+            }
+            Ok(Some(size))
+        })
+        .collect()
+}
+
+/// The most common size; ties go to the size whose centre is nearest the principal point, then to the first.
+fn camera_size(seen: &[(PathBuf, Size)], raw: Option<&RawCamera>) -> Option<Size> {
+    let off_centre = |(w, h): Size| {
+        raw.map_or(0.0, |r| {
+            let (cx, cy) = r.principal_point();
+            (2.0 * cx - w as f32).abs() + (2.0 * cy - h as f32).abs()
+        })
+    };
+    tally(seen.iter().map(|(_, s)| *s))
+        .into_iter()
+        .rev()
+        .max_by(|(a, n), (b, m)| n.cmp(m).then(off_centre(*b).total_cmp(&off_centre(*a))))
+        .map(|(size, _)| size)
+}
+
+/// The mask of each listed image (see [`resolve_mask`]), checked to lie inside the folder.
+pub(super) fn resolve_masks(
+    root: &Path,
+    inside: &Inside,
+    kind: DatasetKind,
+    ims: &[Option<FramePaths>],
+    ck: &mut Checker,
+) -> Result<Vec<Option<Vec<Option<PathBuf>>>>, DataError> {
+    ims.iter()
+        .map(|frame| {
+            let Some(frame) = frame else { return Ok(None) };
+            frame
+                .iter()
+                .map(|p| match p {
+                    Some(p) => ck.check(
+                        resolve_mask(root, kind, p).and_then(|m| inside.check(&m).map(|()| m)),
+                    ),
+                    None => Ok(None),
+                })
+                .collect::<Result<_, _>>()
+                .map(Some)
+        })
+        .collect()
+}
+
+/// `mask_cihp/<image>.png`, else `mask/<image>.png`, else (H36M) the image path with `images` replaced by
+/// `mask`. All candidates are named when none exists.
+fn resolve_mask(root: &Path, kind: DatasetKind, image: &str) -> Result<PathBuf, DataError> {
+    let stem = Path::new(image).with_extension("png");
+    let mut candidates = vec![
+        root.join("mask_cihp").join(&stem),
+        root.join("mask").join(&stem),
+    ];
+    if kind == DatasetKind::H36m {
+        candidates.push(root.join(stem.to_string_lossy().replace("images", "mask")));
+    }
+    candidates
+        .iter()
+        .find(|c| c.is_file())
+        .cloned()
+        .ok_or_else(|| {
+            let tried: Vec<String> = candidates.iter().map(|c| c.display().to_string()).collect();
+            DataError::Missing {
+                path: candidates[0].clone(),
+                what: format!("a mask for image {image}: tried {}", tried.join(", ")),
+            }
+        })
+}
+
+/// Every mask is whole and of its camera's image size (when that is known).
+pub(super) fn check_masks(
+    inside: &Inside,
+    masks: &[Option<Vec<Option<PathBuf>>>],
+    sizes: &[Option<Size>],
+    ck: &mut Checker,
+) -> Result<(), DataError> {
+    let paths = by_camera(masks, PathBuf::clone);
+    for ((c, path), size) in paths.iter().zip(read_sizes(inside, &paths, ck)) {
+        let (Some((w, h)), Some(Some(expected))) = (ck.check(size)?, sizes.get(*c)) else {
+            continue;
+        };
+        if (w, h) != *expected {
+            ck.check::<()>(Err(DataError::invalid(
+                path,
+                format!(
+                    "mask is {w}×{h}, but camera {c}'s images are {}×{}; a mask must match its image",
+                    expected.0, expected.1
+                ),
+            )))?;
+        }
+    }
+    Ok(())
+}
