@@ -26,8 +26,14 @@ fn read_whole(path: &Path) -> Result<(Vec<u8>, ImageFormat), DataError> {
 
 /// A whole PNG or JPEG file, decoded; a cut-short or damaged file is an error naming it.
 pub fn decode(path: &Path) -> Result<DynamicImage, DataError> {
-    let (bytes, format) = read_whole(path)?;
-    image::load_from_memory_with_format(&bytes, format).map_err(image_error(path))
+    decode_bytes(&super::read_bytes(path)?).map_err(image_error(path))
+}
+
+/// [`decode`] of bytes in memory: the structure check, then the decoder (within the `image` crate's default
+/// limit of 512 MiB, whatever size a damaged header claims).
+pub fn decode_bytes(bytes: &[u8]) -> Result<DynamicImage, image::ImageError> {
+    let format = image_structure::check(bytes)?;
+    image::load_from_memory_with_format(bytes, format)
 }
 
 /// An RGB image with channels in `[0, 1]` (8-bit values / 255, as the reference reads them).

@@ -1,13 +1,16 @@
-//! Property test over mutated real files: the `.npy` and pickle parsers return errors on any input, never
-//! panic, and never request an allocation out of proportion to the input (checked by a counting global
-//! allocator). Seeded, so a failure reproduces; the failing input is printed.
+//! Property tests over mutated real files: the `.npy` reader, the unpickler and the image and mask reader
+//! return errors on any input, never panic, and never request an allocation out of proportion to the input
+//! (checked by a counting global allocator); plus the hostile inputs of issue 18 as regressions (the cut
+//! images are in `images.rs`). Seeded and bounded (a second or two in the test profile), so CI runs them
+//! with `cargo test`, and a failure reproduces with the failing input printed.
 
 mod common;
 
 use std::alloc::{GlobalAlloc, Layout, System};
 use std::cell::Cell;
+use std::path::Path;
 
-use anerf_data::formats::{npy, pickle};
+use anerf_data::formats::{image_structure, images, npy, pickle};
 use rand::{Rng, SeedableRng};
 
 /// Counts this thread's allocations (tests run on threads of their own): the largest single request and
@@ -62,33 +65,23 @@ unsafe impl GlobalAlloc for Counting {
 #[global_allocator]
 static ALLOC: Counting = Counting;
 
-fn corpus() -> Vec<(String, Vec<u8>)> {
+/// Every file of the fixture folders `dirs` that `keep` selects, sorted by path.
+fn corpus(dirs: &[&str], keep: impl Fn(&Path) -> bool) -> Vec<(String, Vec<u8>)> {
     let mut files = Vec::new();
-    for dir in [
-        "formats",
-        "zju_mocap/CoreView_377",
-        "zju_mocap/CoreView_377/params",
-        "body_model",
-    ] {
+    for dir in dirs {
         for entry in std::fs::read_dir(common::fixture(dir)).unwrap() {
             let path = entry.unwrap().path();
-            let ext = path.extension().and_then(|e| e.to_str()).unwrap_or("");
-            let interesting = ext == "pkl"
-                || (ext == "npy"
-                    && path
-                        .file_name()
-                        .unwrap()
-                        .to_str()
-                        .unwrap()
-                        .contains(['_', 'a', '0']));
-            if interesting && path.is_file() {
+            if path.is_file() && keep(&path) {
                 files.push((path.display().to_string(), std::fs::read(&path).unwrap()));
             }
         }
     }
     files.sort();
-    assert!(files.len() > 20, "{} corpus files", files.len());
     files
+}
+
+fn extension(path: &Path) -> &str {
+    path.extension().and_then(|e| e.to_str()).unwrap_or("")
 }
 
 fn mutate(rng: &mut impl Rng, src: &[u8]) -> Vec<u8> {
@@ -128,45 +121,127 @@ fn mutate(rng: &mut impl Rng, src: &[u8]) -> Vec<u8> {
     b
 }
 
-#[test]
-fn mutated_files_give_errors_not_panics_or_huge_allocations() {
-    let files = corpus();
-    let mut rng = rand::rngs::StdRng::seed_from_u64(0x5eed_a11e);
+/// Feeds `rounds` mutations of every corpus file to `read` (true when it accepts the input), failing on a
+/// panic or on an allocation larger than `allowed(input)`; returns how many were accepted and rejected.
+fn fuzz(
+    files: &[(String, Vec<u8>)],
+    rounds: usize,
+    seed: u64,
+    read: impl Fn(&[u8]) -> bool + std::panic::RefUnwindSafe,
+    allowed: impl Fn(&[u8]) -> usize,
+) -> (usize, usize) {
+    let mut rng = rand::rngs::StdRng::seed_from_u64(seed);
     let (mut ok, mut err) = (0usize, 0usize);
-    for round in 0..1000 {
-        for (name, src) in &files {
+    for round in 0..rounds {
+        for (name, src) in files {
             let input = mutate(&mut rng, src);
             Counting::reset();
-            let result = std::panic::catch_unwind(|| {
-                let a = npy::parse(&input).is_ok();
-                let b = pickle::parse(&input).is_ok();
-                // Also feed the pickle part of object files directly to the unpickler.
-                let body = input
-                    .iter()
-                    .position(|&c| c == b'\n')
-                    .map_or(&input[..0], |i| &input[i + 1..]);
-                let c = pickle::parse(body).is_ok();
-                a || b || c
-            });
+            let result = std::panic::catch_unwind(|| read(&input));
             let largest = LARGEST.get();
             match result {
                 Ok(true) => ok += 1,
                 Ok(false) => err += 1,
-                Err(_) => panic!("round {round}, {name}: parser panicked on {input:?}"),
+                Err(_) => panic!("round {round}, {name}: reader panicked on {input:?}"),
             }
-            let cap = 64 * input.len() + (1 << 20);
+            let cap = allowed(&input);
             assert!(
                 largest <= cap,
-                "round {round}, {name}: allocation of {largest} bytes for {} input bytes",
+                "round {round}, {name}: allocation of {largest} bytes for {} input bytes: {input:?}",
                 input.len()
             );
         }
     }
-    println!("fuzz: {} inputs, {ok} parsed, {err} rejected", ok + err);
+    println!("fuzz: {} inputs, {ok} accepted, {err} rejected", ok + err);
     assert!(
         err > ok / 10,
         "mutations should mostly break files: {ok} ok, {err} rejected"
     );
+    (ok, err)
+}
+
+#[test]
+fn mutated_npy_and_pickle_files_give_errors_not_panics_or_huge_allocations() {
+    let files = corpus(
+        &[
+            "formats",
+            "zju_mocap/CoreView_377",
+            "zju_mocap/CoreView_377/params",
+            "body_model",
+        ],
+        |p| {
+            let name = p.file_name().unwrap().to_str().unwrap();
+            extension(p) == "pkl" || (extension(p) == "npy" && name.contains(['_', 'a', '0']))
+        },
+    );
+    assert!(files.len() > 20, "{} corpus files", files.len());
+    fuzz(
+        &files,
+        1000,
+        0x5eed_a11e,
+        |input| {
+            let a = npy::parse(input).is_ok();
+            let b = pickle::parse(input).is_ok();
+            // Also feed the pickle part of object files directly to the unpickler.
+            let body = input
+                .iter()
+                .position(|&c| c == b'\n')
+                .map_or(&input[..0], |i| &input[i + 1..]);
+            let c = pickle::parse(body).is_ok();
+            a || b || c
+        },
+        |input| 64 * input.len() + (1 << 20),
+    );
+}
+
+/// Images and masks: the structure check never refuses what decodes, and a decode allocates no more than
+/// the input and the pixels its (possibly damaged) header declares, within the decoder's 512 MiB limit.
+#[test]
+fn mutated_images_and_masks_give_errors_not_panics_or_huge_allocations() {
+    let files = corpus(
+        &[
+            "zju_mocap/CoreView_377/Camera_B1",
+            "zju_mocap/CoreView_377/mask_cihp/Camera_B1",
+            "h36m/S9/Posing/images/cam0",
+            "metrics/png",
+        ],
+        |p| matches!(extension(p), "jpg" | "png"),
+    );
+    assert!(files.len() >= 12, "{} corpus files", files.len());
+    let declared_pixels = |input: &[u8]| {
+        image::ImageReader::new(std::io::Cursor::new(input))
+            .with_guessed_format()
+            .ok()
+            .and_then(|r| r.into_dimensions().ok())
+            .map_or(0, |(w, h)| w as usize * h as usize)
+    };
+    let (ok, _) = fuzz(
+        &files,
+        300,
+        0x1a6e_5eed,
+        |input| {
+            let whole = image_structure::check(input).is_ok();
+            let decoded = images::decode_bytes(input).is_ok();
+            assert!(
+                whole || !decoded,
+                "the structure check refused a decodable file"
+            );
+            decoded
+        },
+        |input| 64 * input.len() + (1 << 20) + (16 * declared_pixels(input)).min(512 << 20),
+    );
+    assert!(ok > 0, "some mutations (in pixel data) still decode");
+    // Every cut of a whole file is refused: the decoders alone accept many.
+    let mut rng = rand::rngs::StdRng::seed_from_u64(0xc0_7ed);
+    for (name, src) in &files {
+        for _ in 0..50 {
+            let cut = rng.random_range(0..src.len());
+            assert!(
+                images::decode_bytes(&src[..cut]).is_err(),
+                "{name} cut to {cut} of {} bytes decodes",
+                src.len()
+            );
+        }
+    }
 }
 
 /// The issue's hostile pickle, scaled down: one-byte EMPTY_LIST opcodes (and MEMOIZE after each), every list
