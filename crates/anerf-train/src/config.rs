@@ -465,9 +465,9 @@ pub fn apply_override(table: &mut Table, text: &str) -> Result<(), ConfigError> 
     Ok(())
 }
 
-/// The step counts and stage-2 batch a model preset trains with where no file, flag or override gives
-/// them.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+/// The step counts, stage-2 batch and silhouette weight a model preset trains with where no file, flag or
+/// override gives them.
+#[derive(Debug, Clone, Copy, PartialEq)]
 pub struct PresetSchedule {
     /// `train.iterations`.
     pub train_iterations: usize,
@@ -477,6 +477,8 @@ pub struct PresetSchedule {
     pub animate_batch: usize,
     /// `animate.plateau_steps` (0: no early stop).
     pub animate_plateau_steps: usize,
+    /// `train.mask_weight` (0: colours alone, as the paper).
+    pub train_mask_weight: f32,
 }
 
 /// The schedule of each model preset.
@@ -489,22 +491,26 @@ pub fn preset_schedule(preset: ModelPreset) -> PresetSchedule {
             animate_iterations: 10_000,
             animate_batch: 65_536,
             animate_plateau_steps: 0,
+            train_mask_weight: 0.0,
         },
         // Hash grids: 5,000 steps train the realistic subject in under eight minutes on 2 cores; stage 2
         // starts at the body model's weights and its novel-pose PSNR moves by less than 0.1 dB after that
         // (docs/QUALITY.md), so a few hundred steps of 16,384 points, stopped once the consistency loss
-        // stops falling.
+        // stops falling. The silhouette loss clears the hash grid's floaters and edge haze: held-out views
+        // and novel poses gain on the realistic and demo subjects (docs/QUALITY.md).
         ModelPreset::Fast => PresetSchedule {
             train_iterations: 5_000,
             animate_iterations: 300,
             animate_batch: 16_384,
             animate_plateau_steps: 100,
+            train_mask_weight: 0.1,
         },
         ModelPreset::Tiny => PresetSchedule {
             train_iterations: 200,
             animate_iterations: 50,
             animate_batch: 4_096,
             animate_plateau_steps: 0,
+            train_mask_weight: 0.0,
         },
     }
 }
@@ -517,9 +523,10 @@ pub fn preset_help() -> String {
     for p in ModelPreset::ALL {
         let s = preset_schedule(p);
         text.push_str(&format!(
-            "\n  {:<6} stage 1 {} iterations, stage 2 {} iterations of {} points{}",
+            "\n  {:<6} stage 1 {} iterations{}, stage 2 {} iterations of {} points{}",
             p.name(),
             s.train_iterations,
+            mask_note(s.train_mask_weight),
             s.animate_iterations,
             s.animate_batch,
             plateau_note(s.animate_plateau_steps)
@@ -537,18 +544,35 @@ fn plateau_note(steps: usize) -> String {
     }
 }
 
-/// Fills `train.iterations`, `animate.iterations`, `animate.batch` and `animate.plateau_steps` where no
-/// file or override gave them.
+fn mask_note(weight: f32) -> String {
+    if weight == 0.0 {
+        String::new()
+    } else {
+        format!(" with a silhouette loss of weight {weight}")
+    }
+}
+
+/// Fills `train.iterations`, `train.mask_weight`, `animate.iterations`, `animate.batch` and
+/// `animate.plateau_steps` where no file or override gave them.
 fn default_schedule(table: &mut Table, schedule: PresetSchedule) {
     let as_int = |n: usize| Value::Integer(n as i64);
     for (stage, key, value) in [
-        ("train", "iterations", schedule.train_iterations),
-        ("animate", "iterations", schedule.animate_iterations),
-        ("animate", "batch", schedule.animate_batch),
-        ("animate", "plateau_steps", schedule.animate_plateau_steps),
+        ("train", "iterations", as_int(schedule.train_iterations)),
+        ("animate", "iterations", as_int(schedule.animate_iterations)),
+        ("animate", "batch", as_int(schedule.animate_batch)),
+        (
+            "animate",
+            "plateau_steps",
+            as_int(schedule.animate_plateau_steps),
+        ),
+        (
+            "train",
+            "mask_weight",
+            Value::Float(schedule.train_mask_weight as f64),
+        ),
     ] {
         if let Some(Value::Table(t)) = table.get_mut(stage) {
-            t.entry(key).or_insert(as_int(value));
+            t.entry(key).or_insert(value);
         }
     }
 }
@@ -889,14 +913,24 @@ width = 48
         .unwrap();
         assert_eq!(steps(&given), (7, 300, 16_384));
         assert_eq!(given.animate.plateau_steps, 100);
+        assert_eq!(given.train.mask_weight, 0.1);
+        let paper = load(&p, &["model.preset=paper".into()]).unwrap();
+        assert_eq!(paper.train.mask_weight, 0.0, "the paper fits colours alone");
+        let set = load(
+            &p,
+            &["model.preset=fast".into(), "train.mask_weight=0".into()],
+        )
+        .unwrap();
+        assert_eq!(set.train.mask_weight, 0.0, "a config's value wins");
         let help = preset_help();
         for preset in ModelPreset::ALL {
             let s = preset_schedule(preset);
             assert!(
                 help.contains(&format!(
-                    "{:<6} stage 1 {} iterations, stage 2 {} iterations of {} points{}",
+                    "{:<6} stage 1 {} iterations{}, stage 2 {} iterations of {} points{}",
                     preset.name(),
                     s.train_iterations,
+                    mask_note(s.train_mask_weight),
                     s.animate_iterations,
                     s.animate_batch,
                     plateau_note(s.animate_plateau_steps)

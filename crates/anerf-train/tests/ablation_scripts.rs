@@ -60,6 +60,9 @@ fn quick_generalisation_ablation_puts_the_three_splits_side_by_side() {
         "zero_residual",
         "canonical_dirs",
         "no_view_dependence",
+        "fast",
+        "fast_random_residual",
+        "fast_without_silhouette",
     ] {
         let [train, view, pose] =
             ["training-view", "novel-view", "novel-pose"].map(|s| read(variant, s));
@@ -91,5 +94,13 @@ fn quick_generalisation_ablation_puts_the_three_splits_side_by_side() {
     assert_eq!(
         saved("no_view_dependence")["model"]["view_direction"].as_str(),
         Some("none")
+    );
+    assert_eq!(
+        saved("fast_random_residual")["model"]["residual_init"].as_str(),
+        Some("random")
+    );
+    assert_eq!(
+        saved("fast_without_silhouette")["train"]["mask_weight"].as_float(),
+        Some(0.0)
     );
 }

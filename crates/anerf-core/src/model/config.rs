@@ -46,8 +46,8 @@ pub enum ViewDirection {
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum ResidualInit {
-    /// PyTorch's default initialisation of a linear layer (the authors' code). Measured better than
-    /// `Zero` for the stage-1 field (docs/QUALITY.md).
+    /// PyTorch's default initialisation of a linear layer (the authors' code; the `paper` preset's
+    /// stage-1 field).
     #[default]
     Random,
     /// Zero weights and bias: the residual `F` starts at 0, so a field starts at the body model's
@@ -211,6 +211,10 @@ impl ModelPreset {
                 // Held-out views +1.9 to +2.6 dB on the demo subject and +2.1 dB on the realistic one
                 // against world-space directions (docs/QUALITY.md).
                 view_direction: ViewDirection::Canonical,
+                // Stage 1 starts at the body model's weights: better on every split of the realistic
+                // subjects and the demo, and no longer worse than the body model's weights alone where
+                // those are exact (docs/QUALITY.md).
+                residual_init: ResidualInit::Zero,
                 blend_code_dim: 16,
                 appearance_code_dim: 16,
                 encoding: PointEncoding::HashGrid {
