@@ -30,15 +30,6 @@ impl DeviceChoice {
         DeviceChoice::Wgpu,
     ];
 
-    /// Whether this binary was built with the backend.
-    pub fn is_compiled(self) -> bool {
-        match self {
-            DeviceChoice::Flex => true,
-            DeviceChoice::Ndarray => cfg!(feature = "ndarray"),
-            DeviceChoice::Wgpu => cfg!(feature = "wgpu"),
-        }
-    }
-
     fn feature(self) -> &'static str {
         match self {
             DeviceChoice::Flex => "flex",

@@ -80,7 +80,7 @@ pub struct TrainArgs {
     /// Novel-pose frames start:end[:step] (default: the frames after the training frames).
     #[arg(long)]
     pub novel_pose_frames: Option<String>,
-    #[arg(long, long_help = crate::config::preset_help(), help = "Model preset (paper, cpu, fast, tiny); --help lists each one's schedule")]
+    #[arg(long, long_help = crate::config::preset_help(), help = crate::config::preset_short_help())]
     pub preset: Option<ModelPreset>,
     /// Training iterations (default: the preset's schedule).
     #[arg(long)]
@@ -255,6 +255,22 @@ pub fn interrupt_flag() -> Arc<AtomicBool> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn train_help_lists_every_preset_of_the_registry() {
+        use clap::CommandFactory;
+        let mut cli = Cli::command();
+        let train = cli.find_subcommand_mut("train").expect("a train command");
+        let short = train.render_help().to_string();
+        let long = train.render_long_help().to_string();
+        for preset in anerf_core::model::ModelPreset::ALL {
+            assert!(short.contains(preset.name()), "{short}");
+            assert!(
+                long.contains(&format!("  {:<6} stage 1", preset.name())),
+                "{long}"
+            );
+        }
+    }
 
     #[test]
     fn an_error_chain_says_each_cause_once() {

@@ -466,15 +466,6 @@ pub fn prepare(config: ExperimentConfig, common: &Common) -> Result<()> {
     Ok(())
 }
 
-/// The model presets, for help texts.
-pub fn preset_names() -> String {
-    ModelPreset::ALL
-        .iter()
-        .map(|p| p.name())
-        .collect::<Vec<_>>()
-        .join(", ")
-}
-
 /// What `anerf render` draws.
 #[derive(Debug, Clone)]
 pub enum RenderJob {

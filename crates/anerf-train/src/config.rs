@@ -516,6 +516,16 @@ pub fn preset_schedule(preset: ModelPreset) -> PresetSchedule {
 }
 
 /// The `--preset` help of `anerf train`: each preset's schedule.
+/// The short help of `--preset`: every preset's name, from the registry.
+pub fn preset_short_help() -> String {
+    let names: Vec<&str> = ModelPreset::ALL.iter().map(|p| p.name()).collect();
+    format!(
+        "Model preset ({}); --help lists each one's schedule",
+        names.join(", ")
+    )
+}
+
+/// The long help of `--preset`: each preset's schedule.
 pub fn preset_help() -> String {
     let mut text = String::from(
         "Model preset; without --iterations (or train.iterations in the config) each trains its own schedule:",

@@ -2,7 +2,6 @@
 //! model inputs on the device (uploaded once, then reused).
 
 use std::collections::HashMap;
-use std::path::Path;
 
 use anerf_core::geometry::skinning::BoneMatrices;
 use anerf_core::geometry::Aabb;
@@ -250,10 +249,5 @@ impl Experiment {
             bail!("{id} is a novel pose; run `anerf animate` first");
         }
         Ok(())
-    }
-
-    /// The experiment's run folder under `runs`.
-    pub fn default_run_dir(&self, runs: &Path) -> std::path::PathBuf {
-        runs.join(&self.config.name)
     }
 }

@@ -87,11 +87,6 @@ impl BlendWeightField {
     pub fn num_joints(&self) -> usize {
         self.head.weight.dims()[1]
     }
-
-    /// Number of latent codes.
-    pub fn num_codes(&self) -> usize {
-        self.codes.weight.dims()[0]
-    }
 }
 
 /// The output layer `F` of a field: zero (the field starts at the prior) or PyTorch's initialisation.

@@ -60,14 +60,6 @@ mod op {
     pub const BINBYTES: u8 = b'B';
 }
 
-/// Protocol-3 pickle of `value`.
-pub fn pickle_bytes(value: &PyValue) -> Result<Vec<u8>, FormatWriteError> {
-    let mut p = Pickler(vec![op::PROTO, 3]);
-    p.value(value)?;
-    p.0.push(op::STOP);
-    Ok(p.0)
-}
-
 /// The complete `.npy` file that `np.save(path, value)` writes for a non-array `value`: `np.load(path,
 /// allow_pickle=True).item()` gives `value` back.
 pub fn object_npy_bytes(value: &PyValue) -> Result<Vec<u8>, FormatWriteError> {
