@@ -214,11 +214,11 @@ pub fn train(
 ) -> Result<StageOutcome> {
     run_start::check_stage1(run, start)?;
     if start == RunStart::Resume {
-        let saved = RunDir::open(run)?.read_config()?;
-        if saved.model != config.model {
+        let existing = RunDir::open(run)?;
+        if existing.read_config()?.model != config.model {
             bail!(
                 "--resume: the config's [model] differs from the run's {}",
-                RunDir::open(run)?.config_path().display()
+                existing.config_path().display()
             );
         }
     }

@@ -120,27 +120,15 @@ pub fn train_stage1(
     let cfg = exp.config.train.clone();
     let model_cfg = exp.config.model.clone();
     let device = exp.device.clone();
-    let restored = if options.resume {
-        let restored = Checkpoint::restore_newest(
-            &run.checkpoints(),
-            Stage::Train,
-            &model_cfg,
-            &device,
-            Some(&|| optimizer(&cfg)),
-        )?
-        .with_context(|| {
-            format!(
-                "--resume: {} has no stage-1 checkpoint (start without --resume)",
-                run.root.display()
-            )
-        })?;
-        check_sizes(&restored.state, exp)?;
-        Some(restored)
+    let resumed = if options.resume {
+        let resumed = resume_point(run, Stage::Train, &model_cfg, &cfg, &device)?;
+        check_sizes(&resumed.2, exp)?;
+        Some(resumed)
     } else {
         None
     };
-    let (mut model, mut optim, mut state) = match restored {
-        Some(r) => (r.model, r.optim.expect("asked for the optimiser"), r.state),
+    let (mut model, mut optim, mut state) = match resumed {
+        Some(r) => r,
         None => {
             device.seed(exp.config.seed);
             let sampler = RaySampler::new(
@@ -315,6 +303,32 @@ fn ending(interrupted: bool, plateau: &Plateau) -> &'static str {
     }
 }
 
+/// The model, optimiser and state of `stage`'s newest intact checkpoint, to resume from; an error when the
+/// stage has none.
+fn resume_point(
+    run: &RunDir,
+    stage: Stage,
+    model: &ModelConfig,
+    cfg: &StageConfig,
+    device: &Device,
+) -> Result<(AnimatableNerf, ModuleOptimizer, TrainerState)> {
+    let r = Checkpoint::restore_newest(
+        &run.checkpoints(),
+        stage,
+        model,
+        device,
+        Some(&|| optimizer(cfg)),
+    )?
+    .with_context(|| {
+        format!(
+            "--resume: {} has no stage-{} checkpoint (start the stage without --resume)",
+            run.root.display(),
+            stage.number()
+        )
+    })?;
+    Ok((r.model, r.optim.expect("asked for the optimiser"), r.state))
+}
+
 fn check_sizes(state: &TrainerState, exp: &Experiment) -> Result<()> {
     let sizes = exp.model_sizes();
     if state.training_frames != sizes.training_frames || state.joints != sizes.joints {
@@ -370,29 +384,18 @@ pub fn train_stage2(
         bail!("the config selects no novel-pose frames (dataset.*.novel_pose_frames); nothing to animate");
     }
     let resumed = if options.resume {
-        let restored = Checkpoint::restore_newest(
-            &run.checkpoints(),
+        Some(resume_point(
+            run,
             Stage::Animate,
             &model_cfg,
+            &cfg,
             &device,
-            Some(&|| optimizer(&cfg)),
-        )?
-        .with_context(|| {
-            format!(
-                "--resume: {} has no stage-2 checkpoint (start stage 2 without --resume)",
-                run.root.display()
-            )
-        })?;
-        Some(restored)
+        )?)
     } else {
         None
     };
     let (mut model, mut optim, mut state) = match resumed {
-        Some(r) => (
-            r.model.freeze_stage1(),
-            r.optim.expect("asked for the optimiser"),
-            r.state,
-        ),
+        Some((model, optim, state)) => (model.freeze_stage1(), optim, state),
         None => {
             let stage1 = Checkpoint::restore_newest(
                 &run.checkpoints(),
