@@ -271,6 +271,16 @@ impl Checkpoint {
         if candidates.is_empty() {
             return Ok(None);
         }
+        let latest = pointer(root, stage);
+        if let Ok(named) = fs::read_to_string(&latest) {
+            if !root.join(named.trim()).is_dir() {
+                eprintln!(
+                    "warning: {} names {}, which does not exist; trying the checkpoints that do",
+                    latest.display(),
+                    named.trim()
+                );
+            }
+        }
         let mut damaged = Vec::new();
         for ck in candidates {
             match ck.restore(expected, device, optimizer) {

@@ -295,6 +295,18 @@ fn a_damaged_checkpoint_falls_back_to_the_newest_intact_one() {
         "{stderr}"
     );
     assert!(stderr.contains("stage1-00000002"), "{stderr}");
+    // A `latest` pointer to a missing folder is named too.
+    let copy = damaged_copy(&run, dir.path(), "eval-pointer", &cases[4].1);
+    let out = anerf()
+        .args(["eval", copy.to_str().unwrap(), "--quiet"])
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "{stderr}");
+    assert!(
+        stderr.contains("latest-stage1") && stderr.contains("does not exist"),
+        "{stderr}"
+    );
 
     // Every checkpoint damaged: an error that lists each.
     let all = damaged_copy(&run, dir.path(), "all", |c: &Path| {
