@@ -7,7 +7,6 @@
 //! * frames: **world** (calibrated capture frame) → **pose space** (`x_pose = R_hᵀ (x_world − T_h)`) →
 //!   **canonical** (T-pose) through inverse linear blend skinning.
 
-pub mod alloc;
 pub mod body;
 pub mod device;
 pub mod error;

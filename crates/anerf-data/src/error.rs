@@ -39,6 +39,8 @@ pub enum DataError {
     /// Readable, but the content is not what the layout requires (shape, value, count, path).
     #[error("{}: {detail}", path.display())]
     Invalid { path: PathBuf, detail: String },
+    #[error(transparent)]
+    Write(#[from] crate::atomic::WriteError),
 }
 
 impl DataError {
@@ -51,6 +53,7 @@ impl DataError {
             | DataError::Pickle { path, .. }
             | DataError::Image { path, .. }
             | DataError::Invalid { path, .. } => path,
+            DataError::Write(e) => &e.path,
         }
     }
 

@@ -1,4 +1,4 @@
-//! Training rays (REFERENCE.md §3.3) and evaluation rays (§4.2) of one image.
+//! Training rays (docs/REFERENCE.md §3.3) and evaluation rays (§4.2) of one image.
 //!
 //! Pixels are addressed by integer coordinates (column `u`, row `v`), and rays go through them in the
 //! camera's [`PixelConvention`] (the reference: integer positions, no +0.5). Boxes are world space, metres.
@@ -367,7 +367,7 @@ pub struct ImageRays {
     pub ground_truth: Option<Rgb32FImage>,
 }
 
-/// All rays of an image whose pixel ray hits `bounds.padded(near_far_padding)` (REFERENCE.md §4.2).
+/// All rays of an image whose pixel ray hits `bounds.padded(near_far_padding)` (docs/REFERENCE.md §4.2).
 pub fn image_rays(
     camera: &Camera,
     bounds: &Aabb,

@@ -1,4 +1,4 @@
-//! The reference's train / novel-pose splits (REFERENCE.md §1.2, §4.1): which cameras train, which
+//! The reference's train / novel-pose splits (docs/REFERENCE.md §1.2, §4.1): which cameras train, which
 //! frames train and which serve as novel poses. ZJU-MoCap uses the ICCV configs where they exist (313,
 //! 315, 377, 386) and the Neural Body / TPAMI ranges for the other sequences.
 

@@ -1,5 +1,5 @@
 //! Visual hulls: the world points every chosen camera sees inside its (dilated) foreground mask, as the
-//! reference carves its mesh-extraction grid (REFERENCE.md §5).
+//! reference carves its mesh-extraction grid (docs/REFERENCE.md §5).
 
 use anerf_core::geometry::{Camera, PixelConvention};
 use anerf_core::{FrameId, ViewId};

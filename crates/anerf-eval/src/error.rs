@@ -31,6 +31,8 @@ pub enum MetricError {
 /// Errors while reading, measuring or writing evaluation files; every variant names its file.
 #[derive(Debug, Error)]
 pub enum EvalError {
+    #[error(transparent)]
+    Write(#[from] anerf_data::atomic::WriteError),
     #[error("{path}: file not found; expected {expected}", path = path.display())]
     MissingFile {
         path: PathBuf,

@@ -9,7 +9,7 @@ use image::codecs::gif::{GifEncoder, Repeat};
 use image::codecs::png::PngEncoder;
 use image::{Delay, DynamicImage, Frame, ImageBuffer, Luma, RgbaImage};
 
-use crate::atomic::{temp_dir_beside, write_atomic};
+use anerf_data::atomic::{temp_dir_beside, write_with};
 use crate::error::{EvalError, MetricError};
 use crate::raster::{ensure_same_size, ImageSize, PixelMask, RgbImageF32};
 
@@ -142,7 +142,7 @@ fn raw_buffer<P: image::Pixel>(
 }
 
 fn write_dynamic_png(path: &Path, image: &DynamicImage) -> Result<(), EvalError> {
-    write_atomic(path, |w| {
+    write_with(path, |w| {
         image
             .write_with_encoder(PngEncoder::new(w))
             .map_err(|source| EvalError::Encode {
@@ -246,7 +246,7 @@ pub fn write_gif(path: &Path, frames: &[RgbImageF32], fps: u32) -> Result<(), Ev
         path: path.to_path_buf(),
         source,
     };
-    write_atomic(path, |w| {
+    write_with(path, |w| {
         let mut encoder = GifEncoder::new_with_speed(w, 10);
         encoder.set_repeat(Repeat::Infinite).map_err(encode_error)?;
         let delay = Delay::from_numer_denom_ms(1000, fps);

@@ -1,7 +1,6 @@
 //! Evaluation and outputs of anerf: PSNR and SSIM with the paper's protocol, image comparison, image and
 //! video files, metric reports, and mesh export.
 
-pub mod atomic;
 pub mod compare;
 pub mod error;
 pub mod images;

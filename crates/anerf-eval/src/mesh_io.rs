@@ -9,7 +9,7 @@ use std::path::Path;
 
 use glam::Vec3;
 
-use crate::atomic::write_atomic;
+use anerf_data::atomic::write_with;
 use crate::error::EvalError;
 
 /// Header comment of every PLY written here.
@@ -163,7 +163,7 @@ pub fn write_ply(path: &Path, mesh: &MeshView) -> Result<(), EvalError> {
             bytes.extend_from_slice(&(v as i32).to_le_bytes());
         }
     }
-    write_atomic(path, |w| {
+    write_with(path, |w| {
         w.write_all(&bytes).map_err(|source| EvalError::Io {
             path: path.to_path_buf(),
             source,
@@ -191,7 +191,7 @@ pub fn write_obj(path: &Path, mesh: &MeshView) -> Result<(), EvalError> {
     for [a, b, c] in mesh.faces {
         text += &format!("f {} {} {}\n", a + 1, b + 1, c + 1);
     }
-    write_atomic(path, |w| {
+    write_with(path, |w| {
         w.write_all(text.as_bytes())
             .map_err(|source| EvalError::Io {
                 path: path.to_path_buf(),

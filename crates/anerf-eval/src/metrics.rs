@@ -1,4 +1,4 @@
-//! PSNR and SSIM exactly as the reference evaluator computes them (REFERENCE.md §4.2), in f64.
+//! PSNR and SSIM exactly as the reference evaluator computes them (docs/REFERENCE.md §4.2), in f64.
 //!
 //! SSIM reproduces scikit-image's `structural_similarity(a, b, win_size=7, data_range=2, channel_axis=-1,
 //! use_sample_covariance=True, gaussian_weights=False)`, i.e. skimage 0.14's `compare_ssim` defaults on

@@ -13,7 +13,7 @@ use std::path::{Path, PathBuf};
 use anerf_core::{FrameId, ViewId};
 use serde::{Deserialize, Serialize};
 
-use crate::atomic::write_atomic;
+use anerf_data::atomic::write_with;
 use crate::error::EvalError;
 use crate::images::{
     quantised, read_mask, read_rgb, side_by_side, write_mask_png, write_png, PngDepth,
@@ -209,7 +209,7 @@ impl EvalRecorder {
         write_json(&self.dir.join("metrics.json"), &self.records)?;
         write_json(&self.dir.join("summary.json"), &summary)?;
         let table = markdown_table("split", &[(self.split.to_string(), summary)]);
-        write_atomic(&self.dir.join("summary.md"), |w| {
+        write_with(&self.dir.join("summary.md"), |w| {
             write_text(w, &self.dir.join("summary.md"), &table)
         })?;
         Ok(summary)
@@ -290,7 +290,7 @@ pub fn write_records_csv(path: &Path, records: &[ImageRecord]) -> Result<(), Eva
             r.split, r.frame.0, r.view.0, r.psnr, r.ssim
         );
     }
-    write_atomic(path, |w| write_text(w, path, &text))
+    write_with(path, |w| write_text(w, path, &text))
 }
 
 /// Writes `value` as pretty JSON atomically.
@@ -299,7 +299,7 @@ pub fn write_json(path: &Path, value: &impl Serialize) -> Result<(), EvalError> 
         path: path.to_path_buf(),
         source,
     })?;
-    write_atomic(path, |w| write_text(w, path, &(text + "\n")))
+    write_with(path, |w| write_text(w, path, &(text + "\n")))
 }
 
 fn write_text(w: &mut dyn Write, path: &Path, text: &str) -> Result<(), EvalError> {

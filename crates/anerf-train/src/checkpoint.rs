@@ -7,6 +7,7 @@ use std::fs;
 use std::path::{Path, PathBuf};
 
 use anerf_core::model::{AnimatableNerf, ModelConfig, ModelSizes, OccupancyGrid};
+use anerf_data::atomic::write_bytes;
 use anerf_data::RaySampler;
 use anyhow::{anyhow, bail, Context, Result};
 use burn::module::Module;
@@ -16,16 +17,17 @@ use rand_chacha::ChaCha8Rng;
 use serde::{Deserialize, Serialize};
 use sha2::{Digest, Sha256};
 
-use crate::run_dir::write_atomic;
 use crate::stage::Stage;
-use crate::window::Window;
+use crate::training::LoopState;
 
 /// Everything besides tensors that a resumed run needs.
 #[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct TrainerState {
     pub stage: Stage,
-    /// Steps completed.
-    pub step: usize,
+    /// Steps completed, the early stop's watch and the open log window (`step`, `plateau` and `window`
+    /// in `state.json`).
+    #[serde(flatten)]
+    pub counters: LoopState,
     pub model: ModelConfig,
     pub training_frames: usize,
     pub joints: usize,
@@ -35,13 +37,6 @@ pub struct TrainerState {
     pub sampler: Option<RaySampler>,
     /// The trainer's own random stream (jitter, frame choice, stage-2 points).
     pub rng: ChaCha8Rng,
-    /// The stage's early stop on a loss plateau (absent in checkpoints written before it existed).
-    #[serde(default)]
-    pub plateau: crate::schedule::Plateau,
-    /// The log window open at this step, so that a resumed run logs the means an uninterrupted one would
-    /// (absent in checkpoints written before it existed).
-    #[serde(default)]
-    pub window: Window,
 }
 
 impl TrainerState {
@@ -156,7 +151,7 @@ fn step_of(name: &str, stage: Stage) -> Option<usize> {
 }
 
 impl Checkpoint {
-    /// Writes a checkpoint of `state.stage` at `state.step`, points `latest` at it and removes older
+    /// Writes a checkpoint of `state.stage` at `state.counters.step`, points `latest` at it and removes older
     /// checkpoints beyond the newest two, and any of a higher step (left by an abandoned or damaged
     /// continuation).
     pub fn save(
@@ -165,7 +160,7 @@ impl Checkpoint {
         model: &AnimatableNerf,
         optim: &ModuleOptimizer,
     ) -> Result<Checkpoint> {
-        let name = format!("stage{}-{:08}", state.stage.number(), state.step);
+        let name = format!("stage{}-{:08}", state.stage.number(), state.counters.step);
         let tmp = root.join(format!(".tmp-{name}"));
         let dir = root.join(&name);
         if tmp.exists() {
@@ -179,13 +174,13 @@ impl Checkpoint {
                 .save_file(tmp.join(MODEL))
                 .map_err(|e| anyhow!("{e}"))?;
             optim.save(tmp.join(OPTIM)).map_err(|e| anyhow!("{e}"))?;
-            write_atomic(
+            write_bytes(
                 &tmp.join(STATE),
                 serde_json::to_string_pretty(state)?.as_bytes(),
             )?;
             let mut names = vec![MODEL, OPTIM, STATE];
             if let Some(grid) = model.occupancy() {
-                write_atomic(
+                write_bytes(
                     &tmp.join(OCCUPANCY),
                     serde_json::to_string(grid)?.as_bytes(),
                 )?;
@@ -200,7 +195,7 @@ impl Checkpoint {
                     .map(|n| FileRecord::of(&tmp, n))
                     .collect::<Result<_>>()?,
             };
-            write_atomic(
+            write_bytes(
                 &tmp.join(MANIFEST),
                 serde_json::to_string_pretty(&manifest)?.as_bytes(),
             )?;
@@ -217,8 +212,8 @@ impl Checkpoint {
                 dir.display()
             )));
         }
-        write_atomic(&pointer(root, state.stage), name.as_bytes())?;
-        prune(root, state.stage, state.step)?;
+        write_bytes(&pointer(root, state.stage), name.as_bytes())?;
+        prune(root, state.stage, state.counters.step)?;
         Ok(Checkpoint { dir })
     }
 

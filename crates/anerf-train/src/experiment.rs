@@ -12,6 +12,7 @@ use anerf_data::{DatasetKind, LoadOptions, PrepareOptions, PreparedSubject};
 use anyhow::{bail, Context, Result};
 use burn::prelude::Device;
 
+use crate::progress::PhaseProgress;
 use crate::config::{ExperimentConfig, VolumeSource};
 
 /// A config together with the data it names, ready for training, evaluation or rendering.
@@ -158,10 +159,9 @@ impl Experiment {
                 _ => NearestMethod::Surface,
             },
             dataset_volumes: d.volumes == VolumeSource::Dataset,
-            progress,
             ..PrepareOptions::default()
         };
-        let prepared = anerf_data::prepare(&subject, &options)
+        let prepared = anerf_data::prepare_with(&subject, &options, &PhaseProgress::new(progress))
             .context("preparing the dataset (anerf prepare)")?;
         let canonical = CanonicalInputs {
             volume: prepared.canonical_volume()?.to_tensor(&device),

@@ -1,12 +1,11 @@
-//! Training for anerf: experiment configs, the stage-1 and stage-2 loops, checkpoints, rendering and
-//! evaluation of runs, and the library behind the `anerf` command-line tool.
+//! Training for anerf: experiment configs, the experiment a run trains on, the stage-1 and stage-2 loops,
+//! checkpoints and run folders, and the jobs the `anerf` app runs on a run folder (train, animate,
+//! evaluate, render, mesh). The command-line app itself is `src/bin/anerf/`.
 
-pub mod bench;
 pub mod checkpoint;
-pub mod cli;
-pub mod commands;
 pub mod config;
 pub mod experiment;
+pub mod jobs;
 pub mod memory;
 pub mod mesh;
 pub mod poses;
@@ -14,7 +13,5 @@ pub mod progress;
 pub mod render;
 pub mod run_dir;
 pub mod run_start;
-pub mod schedule;
 pub mod stage;
-pub mod train;
-pub mod window;
+pub mod training;

@@ -188,7 +188,7 @@ pub struct PosedFrame<'a> {
     pub bounds: Aabb,
 }
 
-/// The reference's posed mesh of a frame (REFERENCE.md §5), in world space (metres): nodes `job.voxel` apart
+/// The reference's posed mesh of a frame (docs/REFERENCE.md §5), in world space (metres): nodes `job.voxel` apart
 /// over the frame's world box, kept when nearer than [`MESH_CULL_DISTANCE`] to the posed body and, with
 /// `hull`, inside every training view's silhouette; a node's raw density is the canonical NeRF's at the
 /// node warped back to canonical space with the frame's blend weights.

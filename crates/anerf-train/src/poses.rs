@@ -11,7 +11,7 @@ use anerf_data::PreparedSubject;
 use anyhow::{Context, Result};
 use burn::prelude::Device;
 
-use crate::train::PoseTarget;
+use crate::training::PoseTarget;
 
 /// Poses read from files, in file order.
 pub struct PoseSequence {

@@ -1,9 +1,13 @@
-//! What a running stage shows on standard error: a progress bar on a terminal; plain lines when standard
-//! error is redirected (nohup, SLURM, a pipe), which a batch job's log can be read from while it runs;
-//! nothing with `--quiet`.
+//! What a running stage, evaluation, render or preparation shows on standard error: a progress bar on a
+//! terminal; plain lines when standard error is redirected (nohup, SLURM, a pipe), which a batch job's log
+//! can be read from while it runs; nothing with `--quiet`.
 
 use std::io::IsTerminal;
+use std::sync::atomic::{AtomicUsize, Ordering};
+use std::sync::Mutex;
 use std::time::{Duration, Instant};
+
+use anerf_data::PrepareProgress;
 
 use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
 
@@ -102,6 +106,44 @@ impl StageProgress {
             self.total,
             clock(self.started.elapsed())
         ));
+    }
+}
+
+/// The phases of a dataset preparation, each shown as a [`StageProgress`] of its items.
+pub struct PhaseProgress {
+    visible: bool,
+    current: Mutex<Option<StageProgress>>,
+    done: AtomicUsize,
+}
+
+impl PhaseProgress {
+    pub fn new(visible: bool) -> Self {
+        Self {
+            visible,
+            current: Mutex::new(None),
+            done: AtomicUsize::new(0),
+        }
+    }
+}
+
+impl PrepareProgress for PhaseProgress {
+    fn start(&self, phase: &'static str, total: u64) {
+        self.done.store(0, Ordering::SeqCst);
+        *self.current.lock().expect("no panic while drawing") =
+            Some(StageProgress::new(phase, 0, total as usize, self.visible));
+    }
+
+    fn advance(&self) {
+        let done = self.done.fetch_add(1, Ordering::SeqCst) + 1;
+        if let Some(bar) = &*self.current.lock().expect("no panic while drawing") {
+            bar.set_step(done);
+        }
+    }
+
+    fn finish(&self) {
+        if let Some(bar) = self.current.lock().expect("no panic while drawing").take() {
+            bar.finish(self.done.load(Ordering::SeqCst), "finished");
+        }
     }
 }
 

@@ -4,6 +4,7 @@ use std::fs;
 use std::io::Write;
 use std::path::{Path, PathBuf};
 
+use anerf_data::atomic::write_bytes;
 use anyhow::{Context, Result};
 use serde::Serialize;
 
@@ -68,7 +69,10 @@ impl RunDir {
 
     /// Writes the resolved config (atomically).
     pub fn write_config(&self, config: &ExperimentConfig) -> Result<()> {
-        write_atomic(&self.config_path(), config::to_toml(config).as_bytes())
+        Ok(write_bytes(
+            &self.config_path(),
+            config::to_toml(config).as_bytes(),
+        )?)
     }
 
     /// Reads the resolved config back.
@@ -79,12 +83,6 @@ impl RunDir {
         let table = toml::from_str(&text).with_context(|| format!("parsing {}", path.display()))?;
         config::from_table(table).with_context(|| format!("in {}", path.display()))
     }
-}
-
-/// Writes `bytes` to `path` atomically ([`anerf_data::atomic`]).
-pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<()> {
-    anerf_data::atomic::write_bytes(path, bytes)
-        .with_context(|| format!("writing {}", path.display()))
 }
 
 /// Appends JSON lines to `metrics.jsonl`, each line whole.
@@ -123,7 +121,7 @@ impl MetricsLog {
                 );
             }
             if kept.len() != text.len() {
-                write_atomic(&path, kept.as_bytes())?;
+                write_bytes(&path, kept.as_bytes())?;
             }
         }
         Ok(Self { path })

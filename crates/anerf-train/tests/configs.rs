@@ -77,7 +77,7 @@ fn human36m_frame_counts_match_the_paper() {
     }
 }
 
-/// ZJU-MoCap: REFERENCE.md §4.1 (training views 0, 6, 12, 18; the ICCV and TPAMI frame ranges).
+/// ZJU-MoCap: docs/REFERENCE.md §4.1 (training views 0, 6, 12, 18; the ICCV and TPAMI frame ranges).
 #[test]
 fn zju_mocap_ranges_match_the_reference() {
     let iccv = [
@@ -120,56 +120,3 @@ fn zju_mocap_ranges_match_the_reference() {
     );
 }
 
-/// `anerf train <config>` applies its flags over the file, and `--set` over the flags.
-#[test]
-fn train_flags_override_a_config_file_and_set_overrides_the_flags() {
-    use anerf_train::cli::{Cli, Command};
-    use clap::Parser;
-    let file = configs_dir().join("zju_mocap/313.toml");
-    let cli = Cli::parse_from([
-        "anerf",
-        "train",
-        file.to_str().unwrap(),
-        "--preset",
-        "tiny",
-        "--iterations",
-        "7",
-        "--train-views",
-        "1,3",
-        "--train-frames",
-        "0:10",
-        "--novel-pose-frames",
-        "10:20:5",
-        "--set",
-        "train.iterations=9",
-    ]);
-    let Command::Train(args) = cli.command else {
-        panic!("parsed as another command")
-    };
-    let c = anerf_train::commands::train_config(&args).unwrap();
-    let file_config = config::load(&file, &[]).unwrap();
-    assert_ne!(file_config.model, c.model, "the file's preset is not tiny");
-    assert_eq!(c.model, anerf_core::model::ModelPreset::Tiny.config());
-    assert_eq!(c.train.iterations, 9);
-    assert_eq!(c.dataset.train_views, vec![1, 3]);
-    assert_eq!(
-        c.dataset.split().train_frames.frames(),
-        (0..10).collect::<Vec<_>>()
-    );
-    assert_eq!(c.dataset.split().novel_pose_frames.frames(), vec![10, 15]);
-    let bad = Cli::parse_from([
-        "anerf",
-        "train",
-        file.to_str().unwrap(),
-        "--train-frames",
-        "9:3",
-    ]);
-    let Command::Train(args) = bad.command else {
-        panic!("parsed as another command")
-    };
-    let err = format!(
-        "{:#}",
-        anerf_train::commands::train_config(&args).unwrap_err()
-    );
-    assert!(err.contains("--train-frames"), "{err}");
-}

@@ -12,12 +12,12 @@ use anerf_core::tensor::to_host;
 use anerf_eval::images::read_rgb;
 use anerf_eval::ImageMetrics;
 use anerf_train::checkpoint::Checkpoint;
-use anerf_train::commands::{self, RenderJob};
+use anerf_train::jobs::{self, RenderJob};
 use anerf_train::experiment::Experiment;
 use anerf_train::poses::PoseSequence;
 use anerf_train::run_start::RunStart;
 use anerf_train::stage::Stage;
-use anerf_train::train::{fit_pose_codes, PoseTarget};
+use anerf_train::training::{fit_pose_codes, PoseTarget};
 use common::{quiet, tiny, trained};
 use glam::Vec3;
 
@@ -44,7 +44,7 @@ fn pose_files_render_as_the_dataset_frames_they_came_from() {
         &["model.neural_blend_weights=false", "train.iterations=8"],
     );
     let run = trained(&config, dir.path());
-    commands::animate(
+    jobs::animate(
         &run,
         &quiet(),
         RunStart::Fresh,
@@ -53,8 +53,8 @@ fn pose_files_render_as_the_dataset_frames_they_came_from() {
     )
     .unwrap();
     let motion = motion(dir.path());
-    commands::render(&run, RenderJob::NovelPoses { view: 1 }, &quiet()).unwrap();
-    let gif = commands::render(
+    jobs::render(&run, RenderJob::NovelPoses { view: 1 }, &quiet()).unwrap();
+    let gif = jobs::render(
         &run,
         RenderJob::PoseFiles {
             path: motion,
@@ -62,7 +62,8 @@ fn pose_files_render_as_the_dataset_frames_they_came_from() {
         },
         &quiet(),
     )
-    .unwrap();
+    .unwrap()
+    .gif;
     assert!(gif.ends_with("renders/poses_motion_view01.gif"), "{gif:?}");
     let frames = |name: &str| -> Vec<PathBuf> {
         let mut v: Vec<PathBuf> = std::fs::read_dir(run.join("renders").join(name))
@@ -172,7 +173,7 @@ fn an_orbit_renders_the_requested_views_and_size() {
         views: 3,
         size: Some(24),
     };
-    let gif = commands::render(&run, job, &quiet()).unwrap();
+    let gif = jobs::render(&run, job, &quiet()).unwrap().gif;
     assert!(gif.ends_with("renders/orbit_frame000002.gif") && gif.is_file());
     let dir = run.join("renders/orbit_frame000002");
     let frames: Vec<_> = (0..3)

@@ -10,11 +10,11 @@ use std::sync::atomic::AtomicBool;
 
 use anerf_core::device::cpu_device;
 use anerf_train::checkpoint::Checkpoint;
-use anerf_train::commands;
+use anerf_train::jobs;
 use anerf_train::config::{self, ExperimentConfig};
 use anerf_train::run_start::RunStart;
 use anerf_train::stage::Stage;
-use anerf_train::train::StageOutcome;
+use anerf_train::training::StageOutcome;
 use common::{quiet, tiny, tiny_config};
 
 fn train(config: &ExperimentConfig, run: &Path, start: RunStart) -> anyhow::Result<StageOutcome> {
@@ -27,7 +27,7 @@ fn train_steps(
     start: RunStart,
     steps: Option<usize>,
 ) -> anyhow::Result<StageOutcome> {
-    commands::train(
+    jobs::train(
         config.clone(),
         run,
         &quiet(),
@@ -38,7 +38,7 @@ fn train_steps(
 }
 
 fn animate(run: &Path, start: RunStart) -> anyhow::Result<StageOutcome> {
-    commands::animate(run, &quiet(), start, None, &AtomicBool::new(false))
+    jobs::animate(run, &quiet(), start, None, &AtomicBool::new(false))
 }
 
 /// The records of `metrics.jsonl` of one stage, without the wall-clock throughput.
@@ -274,7 +274,7 @@ fn a_damaged_checkpoint_falls_back_to_the_newest_intact_one() {
         )
         .unwrap()
         .unwrap();
-        assert_eq!(restored.state.step, 2, "{name}");
+        assert_eq!(restored.state.counters.step, 2, "{name}");
         // Resuming continues from there and gives the uninterrupted run's log.
         let resumed = train(&config, &copy, RunStart::Resume).unwrap();
         assert_eq!(resumed.steps, 4, "{name}");

@@ -11,7 +11,7 @@ use std::time::{Duration, Instant};
 use anerf_core::device::cpu_device;
 use anerf_eval::ImageMetrics;
 use anerf_train::checkpoint::Checkpoint;
-use anerf_train::commands;
+use anerf_train::jobs;
 use anerf_train::config::{self, ExperimentConfig};
 use anerf_train::experiment::Experiment;
 use anerf_train::render::render_view;
@@ -98,7 +98,7 @@ fn resuming_gives_the_losses_of_an_uninterrupted_run() {
     let straight = dir.path().join("straight");
     let split = dir.path().join("split");
     let never = AtomicBool::new(false);
-    commands::train(
+    jobs::train(
         config.clone(),
         &straight,
         &quiet(),
@@ -107,7 +107,7 @@ fn resuming_gives_the_losses_of_an_uninterrupted_run() {
         &never,
     )
     .unwrap();
-    let first = commands::train(
+    let first = jobs::train(
         config.clone(),
         &split,
         &quiet(),
@@ -117,7 +117,7 @@ fn resuming_gives_the_losses_of_an_uninterrupted_run() {
     )
     .unwrap();
     assert!(first.interrupted && first.steps == 3);
-    let second = commands::train(
+    let second = jobs::train(
         config.clone(),
         &split,
         &quiet(),
@@ -133,9 +133,9 @@ fn resuming_gives_the_losses_of_an_uninterrupted_run() {
 
     // Stage 2 resumes the same way.
     let never = AtomicBool::new(false);
-    commands::animate(&straight, &quiet(), RunStart::Fresh, None, &never).unwrap();
-    commands::animate(&split, &quiet(), RunStart::Fresh, Some(2), &never).unwrap();
-    commands::animate(&split, &quiet(), RunStart::Resume, None, &never).unwrap();
+    jobs::animate(&straight, &quiet(), RunStart::Fresh, None, &never).unwrap();
+    jobs::animate(&split, &quiet(), RunStart::Fresh, Some(2), &never).unwrap();
+    jobs::animate(&split, &quiet(), RunStart::Resume, None, &never).unwrap();
     let stage2 = |run: &Path| -> Vec<String> {
         std::fs::read_to_string(run.join("metrics.jsonl"))
             .unwrap()
@@ -196,7 +196,7 @@ fn an_interrupt_leaves_a_loadable_checkpoint() {
         .unwrap()
         .expect("a checkpoint after Ctrl-C");
     let (_, state) = ck.load_model(&config.model, &cpu_device()).unwrap();
-    assert!(state.step >= 3 && state.step < 100000, "{}", state.step);
+    assert!(state.counters.step >= 3 && state.counters.step < 100000, "{}", state.counters.step);
 }
 
 #[test]
@@ -209,7 +209,7 @@ fn a_full_disk_while_checkpointing_keeps_the_previous_checkpoint() {
     let path = write_config(dir.path(), &config);
     let run = dir.path().join("run");
     let never = AtomicBool::new(false);
-    commands::train(
+    jobs::train(
         config.clone(),
         &run,
         &quiet(),
@@ -259,7 +259,7 @@ fn bad_configurations_are_named() {
     let err = |c: ExperimentConfig| {
         format!(
             "{:#}",
-            commands::train(
+            jobs::train(
                 c,
                 &dir.path().join("bad"),
                 &quiet(),
@@ -283,7 +283,7 @@ fn bad_configurations_are_named() {
 
     // A checkpoint of another model config is refused.
     let run = dir.path().join("run");
-    commands::train(
+    jobs::train(
         tiny(dir.path(), &["train.iterations=2"]),
         &run,
         &quiet(),
@@ -295,7 +295,7 @@ fn bad_configurations_are_named() {
     let wider = tiny(dir.path(), &["train.iterations=4", "model.width=48"]);
     let e = format!(
         "{:#}",
-        commands::train(wider, &run, &quiet(), RunStart::Resume, None, &never).unwrap_err()
+        jobs::train(wider, &run, &quiet(), RunStart::Resume, None, &never).unwrap_err()
     );
     assert!(e.contains("model"), "{e}");
 }
@@ -325,7 +325,7 @@ fn a_diverging_run_stops_with_a_clear_message_and_keeps_the_last_good_checkpoint
         .unwrap()
         .expect("a checkpoint before the divergence");
     let (_, state) = ck.load_model(&config.model, &cpu_device()).unwrap();
-    assert!(state.step >= 1 && state.step < 20, "{}", state.step);
+    assert!(state.counters.step >= 1 && state.counters.step < 20, "{}", state.counters.step);
 }
 
 /// With standard error redirected (as under nohup or SLURM) a run prints a start line, a plain line per

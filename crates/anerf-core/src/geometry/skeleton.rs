@@ -1,5 +1,5 @@
 //! Kinematic skeletons, per-frame poses and the bone transforms `A_k` that carry the canonical body
-//! into pose space (REFERENCE.md §2).
+//! into pose space (docs/REFERENCE.md §2).
 
 use glam::{Mat3, Mat4, Vec3, Vec4};
 use serde::{Deserialize, Serialize};

@@ -1,5 +1,5 @@
 //! The composed model: canonical NeRF, neural blend weight fields and latent codes, and the renderer that
-//! turns a ray batch of one frame into colours (paper §3, REFERENCE.md §3.2).
+//! turns a ray batch of one frame into colours (paper §3, docs/REFERENCE.md §3.2).
 
 use burn::prelude::*;
 use burn::tensor::IndexingUpdateOp;

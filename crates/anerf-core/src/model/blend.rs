@@ -1,5 +1,5 @@
 //! The neural blend weight field: body-model prior weights corrected by an MLP conditioned on a per-frame
-//! latent code (paper §3.2, REFERENCE.md §3.1).
+//! latent code (paper §3.2, docs/REFERENCE.md §3.1).
 
 use burn::module::Param;
 use burn::nn::{Embedding, EmbeddingConfig, Linear};

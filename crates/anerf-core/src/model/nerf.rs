@@ -1,4 +1,4 @@
-//! The canonical radiance field `F_σ`, `F_c` (REFERENCE.md §3.1).
+//! The canonical radiance field `F_σ`, `F_c` (docs/REFERENCE.md §3.1).
 
 use burn::nn::{Embedding, EmbeddingConfig, Linear};
 use burn::prelude::*;

@@ -1,5 +1,5 @@
 //! Stage 2: blend-weight fields for novel poses, trained against the frozen canonical field
-//! (paper §3.4 "Animation", REFERENCE.md §3.6).
+//! (paper §3.4 "Animation", docs/REFERENCE.md §3.6).
 
 use burn::prelude::*;
 

@@ -10,7 +10,7 @@ pub mod npz;
 pub mod pickle;
 pub mod pickle_write;
 
-use std::path::{Path, PathBuf};
+use std::path::Path;
 
 use thiserror::Error;
 
@@ -73,17 +73,6 @@ pub enum FormatWriteError {
     HeaderTooLong { shape: Vec<usize>, len: usize },
     #[error("array of shape {shape:?} has {bytes} bytes; a protocol-3 pickle holds at most 4 GiB per buffer")]
     PickledArrayTooLarge { shape: Vec<usize>, bytes: usize },
-    #[error("cannot write {}: {source}", path.display())]
-    Io {
-        path: PathBuf,
-        source: std::io::Error,
-    },
-}
-
-/// Writes `bytes` to `path` atomically ([`crate::atomic`]).
-pub(crate) fn write_file_atomic(path: &Path, bytes: &[u8]) -> Result<(), FormatWriteError> {
-    crate::atomic::write_bytes(path, bytes).map_err(|source| FormatWriteError::Io {
-        path: path.to_path_buf(),
-        source,
-    })
+    #[error(transparent)]
+    Io(#[from] crate::atomic::WriteError),
 }

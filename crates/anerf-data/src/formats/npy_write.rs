@@ -2,7 +2,8 @@
 
 use std::path::Path;
 
-use super::{write_file_atomic, FormatWriteError};
+use super::FormatWriteError;
+use crate::atomic::write_bytes;
 
 /// The element buffer of an array; each variant maps to one numpy dtype.
 #[derive(Debug, Clone, PartialEq)]
@@ -136,7 +137,7 @@ pub fn npy_bytes(array: &NpyArray) -> Result<Vec<u8>, FormatWriteError> {
 
 /// Writes `array` to `path` as a `.npy` file (atomically).
 pub fn write_npy(path: &Path, array: &NpyArray) -> Result<(), FormatWriteError> {
-    write_file_atomic(path, &npy_bytes(array)?)
+    Ok(write_bytes(path, &npy_bytes(array)?)?)
 }
 
 #[cfg(test)]

@@ -10,7 +10,8 @@
 use std::path::Path;
 
 use super::npy_write::{npy_header, NpyArray};
-use super::{write_file_atomic, FormatWriteError};
+use super::FormatWriteError;
+use crate::atomic::write_bytes;
 
 /// The Python values the datasets' pickles are made of.
 #[derive(Debug, Clone, PartialEq)]
@@ -81,7 +82,7 @@ pub fn object_npy_bytes(value: &PyValue) -> Result<Vec<u8>, FormatWriteError> {
 
 /// Writes `value` to `path` as `np.save` would (atomically).
 pub fn write_object_npy(path: &Path, value: &PyValue) -> Result<(), FormatWriteError> {
-    write_file_atomic(path, &object_npy_bytes(value)?)
+    Ok(write_bytes(path, &object_npy_bytes(value)?)?)
 }
 
 struct Pickler(Vec<u8>);

@@ -1,4 +1,4 @@
-//! Loaders from the authors' on-disk layouts (REFERENCE.md §1) to one [`Subject`]. ZJU-MoCap and the
+//! Loaders from the authors' on-disk layouts (docs/REFERENCE.md §1) to one [`Subject`]. ZJU-MoCap and the
 //! processed Human3.6M share the schema (`annots.npy`, image folders, `mask_cihp/`/`mask/`,
 //! `new_params/`, `new_vertices/`, `lbs/`) and differ in a few rules captured by [`DatasetKind`].
 

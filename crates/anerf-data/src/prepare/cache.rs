@@ -13,11 +13,6 @@ use crate::error::DataError;
 /// Bumped whenever the cache layout or any preparation algorithm changes.
 pub const CACHE_VERSION: &str = "v2";
 
-/// Writes `bytes` to `path` atomically ([`crate::atomic`]).
-pub fn atomic_write(path: &Path, bytes: &[u8]) -> Result<(), DataError> {
-    crate::atomic::write_bytes(path, bytes).map_err(|e| DataError::io(path, e))
-}
-
 /// A SHA-256 fingerprint of everything a prepared subject depends on.
 pub struct Fingerprint(Sha256);
 

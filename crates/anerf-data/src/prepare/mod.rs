@@ -5,6 +5,7 @@
 pub mod cache;
 pub mod nearest;
 pub mod new_pose;
+mod progress;
 pub mod resize;
 pub mod undistort;
 pub mod volumes;
@@ -18,12 +19,13 @@ use anerf_core::geometry::{
 use anerf_core::{FrameId, ViewId};
 use glam::Vec3;
 use image::{GrayImage, Rgb32FImage};
-use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
-use self::cache::{atomic_write, entry_dir, read_volume, volume_bytes, Fingerprint};
+use self::cache::{entry_dir, read_volume, volume_bytes, Fingerprint};
+use crate::atomic::write_bytes;
 pub use self::new_pose::PosedBody;
+pub use self::progress::{PrepareProgress, Silent};
 use self::resize::{resize_area, resize_nearest, scaled_size};
 use self::undistort::UndistortMap;
 pub use self::volumes::{compute_volume, NearestMethod, VolumeGrid};
@@ -77,9 +79,6 @@ pub struct PrepareOptions {
     pub dataset_volumes: bool,
     /// Padding of the world box around the posed vertices (metres), the reference's `box_padding`.
     pub box_padding: f32,
-    /// Show progress bars.
-    #[serde(skip)]
-    pub progress: bool,
 }
 
 impl Default for PrepareOptions {
@@ -93,7 +92,6 @@ impl Default for PrepareOptions {
             grid: VolumeGrid::default(),
             dataset_volumes: false,
             box_padding: 0.05,
-            progress: false,
         }
     }
 }
@@ -266,6 +264,15 @@ impl PreparedSubject {
 
 /// Prepares `subject` (or reuses the cache entry of identical inputs and options) and opens the result.
 pub fn prepare(subject: &Subject, options: &PrepareOptions) -> Result<PreparedSubject, DataError> {
+    prepare_with(subject, options, &Silent)
+}
+
+/// [`prepare`], telling `progress` how far each phase is.
+pub fn prepare_with(
+    subject: &Subject,
+    options: &PrepareOptions,
+    progress: &dyn PrepareProgress,
+) -> Result<PreparedSubject, DataError> {
     let frames = options.frames.ids(subject.frames.len());
     let views: Vec<usize> = options
         .views
@@ -307,7 +314,7 @@ pub fn prepare(subject: &Subject, options: &PrepareOptions) -> Result<PreparedSu
     let lbs = subject.root.join("lbs");
 
     // Per-frame bounds and pose-space volumes.
-    let bar = progress_bar(options.progress, frames.len() as u64 + 1, "volumes");
+    progress.start("volumes", frames.len() as u64 + 1);
     let mut entries = Vec::with_capacity(frames.len());
     for &f in &frames {
         let rec = &subject.frames[f];
@@ -340,7 +347,7 @@ pub fn prepare(subject: &Subject, options: &PrepareOptions) -> Result<PreparedSu
                     options.grid,
                 )
             };
-            atomic_write(&out, &volume_bytes(&vol))?;
+            write_bytes(&out, &volume_bytes(&vol))?;
         }
         entries.push(FrameEntry {
             id: f,
@@ -348,7 +355,7 @@ pub fn prepare(subject: &Subject, options: &PrepareOptions) -> Result<PreparedSu
             pose: rec.pose.clone(),
             bounds,
         });
-        bar.inc(1);
+        progress.advance();
     }
     let canonical_bounds = Aabb::from_points(body.canonical_vertices.iter().copied())
         .expect("vertices")
@@ -371,9 +378,9 @@ pub fn prepare(subject: &Subject, options: &PrepareOptions) -> Result<PreparedSu
                 options.grid,
             )
         };
-        atomic_write(&out, &volume_bytes(&vol))?;
+        write_bytes(&out, &volume_bytes(&vol))?;
     }
-    bar.finish();
+    progress.finish();
 
     // Images and masks, all (frame, view) pairs in parallel.
     let maps: Vec<Option<UndistortMap>> = subject
@@ -389,7 +396,7 @@ pub fn prepare(subject: &Subject, options: &PrepareOptions) -> Result<PreparedSu
         .iter()
         .flat_map(|&f| views.iter().map(move |&v| (f, v)))
         .collect();
-    let bar = progress_bar(options.progress, jobs.len() as u64, "images");
+    progress.start("images", jobs.len() as u64);
     jobs.par_iter().try_for_each(|&(f, v)| {
         let rec = &subject.frames[f];
         let (raw, work) = (&subject.cameras[v], &cameras[v]);
@@ -403,7 +410,7 @@ pub fn prepare(subject: &Subject, options: &PrepareOptions) -> Result<PreparedSu
                 None => img,
             };
             let img = resize_area(&img, work.width, work.height);
-            atomic_write(&img_out, &png_rgb(&img))?;
+            write_bytes(&img_out, &png_rgb(&img))?;
         }
         let mask_out = dir.join("masks").join(&name);
         if !mask_out.is_file() {
@@ -421,12 +428,12 @@ pub fn prepare(subject: &Subject, options: &PrepareOptions) -> Result<PreparedSu
                 None => both,
             };
             let both = resize_nearest(&both, work.width, work.height);
-            atomic_write(&mask_out, &png_gray(&both))?;
+            write_bytes(&mask_out, &png_gray(&both))?;
         }
-        bar.inc(1);
+        progress.advance();
         Ok::<(), DataError>(())
     })?;
-    bar.finish();
+    progress.finish();
 
     let manifest = Manifest {
         name: subject.name.clone(),
@@ -443,7 +450,7 @@ pub fn prepare(subject: &Subject, options: &PrepareOptions) -> Result<PreparedSu
     };
     let json =
         serde_json::to_vec(&manifest).map_err(|e| DataError::invalid(&dir, e.to_string()))?;
-    atomic_write(&dir.join(MANIFEST), &json)?;
+    write_bytes(&dir.join(MANIFEST), &json)?;
     PreparedSubject::open(&dir)
 }
 
@@ -539,24 +546,6 @@ fn fingerprint(
 /// JSON bytes of plain data, for fingerprints.
 fn json<T: Serialize + ?Sized>(v: &T) -> Vec<u8> {
     serde_json::to_vec(v).expect("plain data serialises")
-}
-
-fn progress_bar(show: bool, len: u64, what: &'static str) -> ProgressBar {
-    let bar = ProgressBar::with_draw_target(
-        Some(len),
-        if show {
-            ProgressDrawTarget::stderr()
-        } else {
-            ProgressDrawTarget::hidden()
-        },
-    );
-    bar.set_style(
-        ProgressStyle::with_template("{msg:>8} [{bar:40}] {pos}/{len} {elapsed}<{eta}")
-            .expect("valid template")
-            .progress_chars("=> "),
-    );
-    bar.set_message(what);
-    bar
 }
 
 fn png_rgb(img: &Rgb32FImage) -> Vec<u8> {

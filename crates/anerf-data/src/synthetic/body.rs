@@ -15,7 +15,7 @@ use crate::subject::SkinningWeights;
 /// Number of joints (SMPL's).
 pub const NUM_JOINTS: usize = 24;
 
-/// SMPL joint indices used by the generator (REFERENCE.md §2).
+/// SMPL joint indices used by the generator (docs/REFERENCE.md §2).
 pub mod joint {
     pub const PELVIS: usize = 0;
     pub const L_HIP: usize = 1;

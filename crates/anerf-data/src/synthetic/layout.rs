@@ -1,4 +1,4 @@
-//! Writing a synthetic subject in the ZJU-MoCap layout (REFERENCE.md §1.1, §1.3): `annots.npy`,
+//! Writing a synthetic subject in the ZJU-MoCap layout (docs/REFERENCE.md §1.1, §1.3): `annots.npy`,
 //! `Camera_B<c>/<frame:06>.jpg`, `mask_cihp/Camera_B<c>/<frame:06>.png`, `new_params/<i>.npy`,
 //! `new_vertices/<i>.npy`, `lbs/{joints,parents,tvertices,weights,faces}.npy`, plus `splits.json`.
 

@@ -1,5 +1,5 @@
 //! Synthetic subjects: a procedural animated human filmed by a ring of calibrated cameras, written in
-//! the ZJU-MoCap layout (REFERENCE.md §1.1, §1.3) with ground truth for novel views and novel poses.
+//! the ZJU-MoCap layout (docs/REFERENCE.md §1.1, §1.3) with ground truth for novel views and novel poses.
 //! Needs no dataset and no SMPL licence; deterministic under a seed.
 
 pub mod appearance;

@@ -6,24 +6,19 @@ use std::path::{Path, PathBuf};
 use std::sync::atomic::AtomicBool;
 
 use anerf_data::synthetic::{write_subject, SyntheticSpec};
-use anerf_train::cli::Common;
-use anerf_train::commands;
+use anerf_train::jobs::{self, JobOptions};
 use anerf_train::config::{self, ExperimentConfig};
 use anerf_train::run_start::RunStart;
-use anerf_train::train::StageOutcome;
+use anerf_train::training::StageOutcome;
 
-/// Command options without progress bars, on the default device.
-pub fn quiet() -> Common {
-    Common {
-        device: None,
-        overrides: Vec::new(),
-        quiet: true,
-    }
+/// Job options without progress bars, on the config's device.
+pub fn quiet() -> JobOptions {
+    JobOptions::default()
 }
 
 /// Trains stage 1 of `config` into `run` (no resume, no step limit).
 pub fn train(config: &ExperimentConfig, run: &Path) -> anyhow::Result<StageOutcome> {
-    commands::train(
+    jobs::train(
         config.clone(),
         run,
         &quiet(),

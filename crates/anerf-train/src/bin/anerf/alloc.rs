@@ -12,7 +12,7 @@
 //!
 //! ```ignore
 //! #[global_allocator]
-//! static ALLOCATOR: anerf_core::alloc::BlockCache = anerf_core::alloc::BlockCache::new();
+//! static ALLOCATOR: alloc::BlockCache = alloc::BlockCache::new();
 //! ```
 
 use std::alloc::{GlobalAlloc, Layout, System};
@@ -89,6 +89,7 @@ impl BlockCache {
     }
 
     /// Bytes currently kept for reuse.
+    #[cfg(test)]
     pub fn cached_bytes(&self) -> usize {
         self.lock().bytes
     }

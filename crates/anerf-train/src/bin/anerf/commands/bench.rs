@@ -21,18 +21,18 @@ use anerf_core::render::color_mse;
 use anerf_core::tensor::from_rows;
 use anerf_core::DeviceChoice;
 use anyhow::{Context, Result};
-use burn::grad_clipping::GradientClippingConfig;
-use burn::optim::{AdamConfig, GradientsParams, ModuleOptimizer};
+use burn::optim::{GradientsParams, ModuleOptimizer};
 use burn::prelude::*;
 use glam::{Mat4, Quat, Vec3};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
+use anerf_train::config::{self, Settings};
+use anerf_train::experiment::Experiment;
+use anerf_train::jobs::load_trained;
+use anerf_train::render::render_view;
+use anerf_train::run_dir::RunDir;
+use anerf_train::training::optimizer;
 use serde::Serialize;
-
-use crate::config;
-use crate::experiment::Experiment;
-use crate::render::render_view;
-use crate::run_dir::RunDir;
 
 /// Options of `anerf bench`.
 #[derive(Debug, Clone, clap::Args)]
@@ -392,14 +392,6 @@ impl StepWorkload {
     }
 }
 
-/// The optimiser of the training loop (Adam, ε = 1e-8, gradients clipped to ±40).
-fn bench_optimizer() -> ModuleOptimizer {
-    AdamConfig::new()
-        .with_epsilon(1e-8)
-        .with_grad_clipping(Some(GradientClippingConfig::Value(40.0)))
-        .init()
-}
-
 /// Wall-clock and CPU time of one step, seconds.
 #[derive(Debug, Clone, Copy)]
 pub struct StepTime {
@@ -422,7 +414,8 @@ impl StepRunner {
         Self {
             work,
             model: Some(model),
-            optim: bench_optimizer(),
+            // The training loop's optimiser with the shipped configs' clip (`grad_clip = 40.0`).
+            optim: optimizer(40.0),
             device: device.clone(),
         }
     }
@@ -510,7 +503,7 @@ fn time_render(args: &BenchArgs, preset: ModelPreset, device: &Device) -> Result
         Some(run) => {
             let run = RunDir::open(run)?;
             let config = run.read_config()?;
-            let model = crate::commands::load_trained(&run, &config, device)?;
+            let model = load_trained(&run, &config, device)?;
             (
                 model,
                 Experiment::open(config, device.clone(), false)?,
@@ -548,28 +541,26 @@ fn time_render(args: &BenchArgs, preset: ModelPreset, device: &Device) -> Result
 /// synthesised into `subject` when it is missing, its cache goes beside it.
 fn demo_frame_config(subject: &Path, preset: ModelPreset) -> Result<config::ExperimentConfig> {
     if !subject.join("annots.npy").is_file() {
-        crate::commands::synth(subject, anerf_data::synthetic::SynthPreset::Demo, None)?;
+        super::synth::write(subject, anerf_data::synthetic::SynthPreset::Demo, None)?;
     }
     let cache = subject
         .parent()
         .unwrap_or_else(|| Path::new("."))
         .join("cache");
-    let mut table = config::defaults();
-    config::merge(
-        &mut table,
-        toml::from_str(crate::commands::DEMO_CONFIG).expect("the demo config is valid TOML"),
-    );
-    let quote = |p: &Path| format!("\"{}\"", p.display().to_string().replace('\\', "/"));
-    for o in [
-        format!("dataset.root={}", quote(subject)),
-        format!("dataset.cache={}", quote(&cache)),
-        format!("model.preset=\"{}\"", preset.name()),
-        "dataset.iccv.train_frames=\"0:1\"".into(),
-        "dataset.iccv.novel_pose_frames=\"1:2\"".into(),
-    ] {
-        config::apply_override(&mut table, &o)?;
-    }
-    config::from_table(table).context("the benchmark's demo config")
+    let one = |start| config::FrameRange {
+        start,
+        end: start + 1,
+        step: 1,
+    };
+    let settings = Settings {
+        root: Some(subject.to_path_buf()),
+        cache: Some(cache),
+        preset: Some(preset),
+        train_frames: Some(one(0)),
+        novel_pose_frames: Some(one(1)),
+        ..Settings::default()
+    };
+    config::assemble(config::demo_table(), &settings, &[]).context("the benchmark's demo config")
 }
 
 /// One-minute load average (`/proc/loadavg`), NaN where unavailable.

@@ -111,7 +111,7 @@ mod tests {
         assert!((learning_rate(&p, 200_000) - 5e-5).abs() < 1e-12);
         let c = stage(LrSchedule::Code);
         assert_eq!(learning_rate(&c, 499), 5e-4);
-        // 400 epochs: 0.1^0.4 of the start, about 2.0e-4, as REFERENCE.md §3.5 notes.
+        // 400 epochs: 0.1^0.4 of the start, about 2.0e-4, as docs/REFERENCE.md §3.5 notes.
         assert!((learning_rate(&c, 200_000) - 5e-4 * 0.1f64.powf(0.4)).abs() < 1e-12);
     }
 }

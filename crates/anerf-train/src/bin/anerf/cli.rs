@@ -1,0 +1,159 @@
+//! The `anerf` command line: the subcommands, the options they share, and how errors and Ctrl-C reach
+//! the user.
+
+use std::sync::atomic::AtomicBool;
+use std::sync::Arc;
+
+use anerf_core::DeviceChoice;
+use anerf_train::jobs::JobOptions;
+use anerf_train::run_start::RunStart;
+use clap::{Args, Parser, Subcommand};
+
+use crate::commands;
+
+/// Animatable human avatars from multi-view video (Animatable NeRF, Peng et al., ICCV 2021).
+#[derive(Debug, Parser)]
+#[command(name = "anerf", version)]
+pub struct Cli {
+    #[command(subcommand)]
+    pub command: Command,
+}
+
+#[derive(Debug, Subcommand)]
+pub enum Command {
+    /// Generate a synthetic subject, train both stages, evaluate and render: the whole pipeline on a CPU.
+    Demo(commands::demo::DemoArgs),
+    /// Write a synthetic multi-view video of an animated human in the ZJU-MoCap layout.
+    Synth(commands::synth::SynthArgs),
+    /// Validate a dataset folder (or the folder a config names) and summarise it.
+    Info(commands::info::InfoArgs),
+    /// Undistort, resize and compute blend-weight volumes into the cache (train does this on demand).
+    Prepare(commands::prepare::PrepareArgs),
+    /// Stage 1: fit the canonical radiance field and blend-weight fields to the training video.
+    Train(commands::train::TrainArgs),
+    /// Stage 2: fit blend-weight fields for the novel-pose frames of a trained run.
+    Animate(commands::animate::AnimateArgs),
+    /// Render the test views of a run and measure PSNR and SSIM with the paper's protocol.
+    Eval(commands::eval::EvalArgs),
+    /// Render a free-viewpoint orbit or a novel-pose sequence of a run.
+    Render(commands::render::RenderArgs),
+    /// Extract the canonical mesh of a run (marching cubes on density) and repose it.
+    Mesh(commands::mesh::MeshArgs),
+    /// PSNR and SSIM of two images (with a mask: the paper's protocol).
+    Compare(commands::compare::CompareArgs),
+    /// Training-step time, throughput, render time and peak memory of each model preset.
+    Bench(commands::bench::BenchArgs),
+}
+
+/// Options every command that computes takes.
+#[derive(Debug, Clone, Args)]
+pub struct Common {
+    /// Compute backend (flex, ndarray, wgpu); overrides the config's `device`.
+    #[arg(long)]
+    pub device: Option<DeviceChoice>,
+    /// Override a config value, e.g. `--set train.iterations=1000` (repeatable).
+    #[arg(long = "set", value_name = "SECTION.KEY=VALUE")]
+    pub overrides: Vec<String>,
+    /// No progress bars.
+    #[arg(long)]
+    pub quiet: bool,
+}
+
+impl Common {
+    /// The library's options of a job.
+    pub fn options(&self) -> JobOptions {
+        JobOptions {
+            device: self.device,
+            set: self.overrides.clone(),
+            progress: !self.quiet,
+        }
+    }
+}
+
+/// How `train` and `animate` treat the stage's earlier checkpoints, and when they stop.
+#[derive(Debug, Clone, Args)]
+pub struct StartArgs {
+    /// Continue the stage from its newest intact checkpoint.
+    #[arg(long, conflicts_with = "overwrite")]
+    pub resume: bool,
+    /// Start the stage again, replacing what an earlier run of it wrote (`train`: the whole run folder,
+    /// deleted once the new run's config and data have been checked).
+    #[arg(long)]
+    pub overwrite: bool,
+    /// Stop (with a checkpoint) after this many steps; `--resume` continues.
+    #[arg(long)]
+    pub steps: Option<usize>,
+}
+
+impl StartArgs {
+    pub fn run_start(&self) -> RunStart {
+        RunStart::from_flags(self.resume, self.overwrite)
+    }
+}
+
+/// An error and its causes on one line, as `anyhow`'s `{:#}` writes them, leaving out each cause whose
+/// text the line already holds (errors that print their source and also return it from `source()`).
+pub fn error_chain(error: &anyhow::Error) -> String {
+    let mut line = String::new();
+    for cause in error.chain() {
+        let text = cause.to_string();
+        if line.contains(&text) {
+            continue;
+        }
+        if !line.is_empty() {
+            line.push_str(": ");
+        }
+        line.push_str(&text);
+    }
+    line
+}
+
+/// Installs the Ctrl-C handler once; the flag it sets makes the training loops checkpoint and stop.
+pub fn interrupt_flag() -> Arc<AtomicBool> {
+    let flag = Arc::new(AtomicBool::new(false));
+    let handler_flag = flag.clone();
+    if let Err(e) = ctrlc::set_handler(move || {
+        eprintln!("\ninterrupted: writing a checkpoint, then stopping (run again with --resume)");
+        handler_flag.store(true, std::sync::atomic::Ordering::SeqCst);
+    }) {
+        eprintln!("warning: cannot install the Ctrl-C handler ({e}); an interrupt will not write a checkpoint");
+    }
+    flag
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn train_help_lists_every_preset_of_the_registry() {
+        use clap::CommandFactory;
+        let mut cli = Cli::command();
+        let train = cli.find_subcommand_mut("train").expect("a train command");
+        let short = train.render_help().to_string();
+        let long = train.render_long_help().to_string();
+        for preset in anerf_core::model::ModelPreset::ALL {
+            assert!(short.contains(preset.name()), "{short}");
+            assert!(
+                long.contains(&format!("  {:<6} stage 1", preset.name())),
+                "{long}"
+            );
+        }
+    }
+
+    #[test]
+    fn an_error_chain_says_each_cause_once() {
+        // `ConfigError::Read` prints its io::Error and returns it as its source: `{:#}` says it twice.
+        let io = std::io::Error::new(std::io::ErrorKind::NotFound, "no such file");
+        let e = anyhow::Error::new(anerf_train::config::ConfigError::Read {
+            path: "a.toml".into(),
+            source: io,
+        })
+        .context("loading the experiment");
+        assert_eq!(format!("{e:#}").matches("no such file").count(), 2);
+        assert_eq!(
+            error_chain(&e),
+            "loading the experiment: cannot read config a.toml: no such file"
+        );
+    }
+}

@@ -1,0 +1,147 @@
+//! `anerf train`: stage 1 of an experiment (a config file, or a subject folder with `--data`).
+
+use std::path::{Path, PathBuf};
+
+use anerf_core::model::ModelPreset;
+use anerf_train::config::{self, ExperimentConfig, FrameRange, Settings};
+use anerf_train::jobs;
+use anerf_train::training::StageOutcome;
+use anyhow::{bail, Result};
+use clap::Args;
+
+use crate::cli::{interrupt_flag, Common, StartArgs};
+
+#[derive(Debug, Args)]
+pub struct TrainArgs {
+    /// Experiment config; or use `--data` to train on a folder without one.
+    pub config: Option<PathBuf>,
+    /// A subject folder in the ZJU-MoCap layout (instead of a config).
+    #[arg(long, conflicts_with = "config")]
+    pub data: Option<PathBuf>,
+    /// Training cameras, e.g. 0,2,4,6 (default: four evenly spaced cameras).
+    #[arg(long, value_delimiter = ',')]
+    pub train_views: Option<Vec<usize>>,
+    /// Training frames start:end[:step] (default: the first two thirds of the frames).
+    #[arg(long)]
+    pub train_frames: Option<FrameRange>,
+    /// Novel-pose frames start:end[:step] (default: the frames after the training frames).
+    #[arg(long)]
+    pub novel_pose_frames: Option<FrameRange>,
+    #[arg(long, long_help = config::preset_help(), help = config::preset_short_help())]
+    pub preset: Option<ModelPreset>,
+    /// Training iterations (default: the preset's schedule).
+    #[arg(long)]
+    pub iterations: Option<usize>,
+    /// Run folder (default runs/<name>).
+    #[arg(long)]
+    pub out: Option<PathBuf>,
+    #[command(flatten)]
+    pub start: StartArgs,
+    #[command(flatten)]
+    pub common: Common,
+}
+
+impl TrainArgs {
+    /// The flags that set config values.
+    fn settings(&self) -> Settings {
+        Settings {
+            preset: self.preset,
+            train_views: self.train_views.clone(),
+            train_frames: self.train_frames,
+            novel_pose_frames: self.novel_pose_frames,
+            iterations: self.iterations,
+            ..Settings::default()
+        }
+    }
+}
+
+/// The config of `anerf train`: the file (or `--data` folder), then the flags, then `--set`.
+pub fn config(args: &TrainArgs) -> Result<ExperimentConfig> {
+    let set = &args.common.overrides;
+    match (&args.config, &args.data) {
+        (Some(path), None) => super::load_config(path, &args.settings(), set),
+        (None, Some(data)) => Ok(config::assemble(
+            config::folder_table(data)?,
+            &args.settings(),
+            set,
+        )?),
+        _ => bail!("give a config file or --data <folder>"),
+    }
+}
+
+/// Trains; the outcome says whether Ctrl-C stopped it.
+pub fn run(args: &TrainArgs) -> Result<StageOutcome> {
+    let config = config(args)?;
+    let run = args
+        .out
+        .clone()
+        .unwrap_or_else(|| Path::new("runs").join(&config.name));
+    let outcome = jobs::train(
+        config,
+        &run,
+        &args.common.options(),
+        args.start.run_start(),
+        args.start.steps,
+        &interrupt_flag(),
+    )?;
+    super::report_outcome("stage 1", &outcome, &run);
+    Ok(outcome)
+}
+
+#[cfg(test)]
+mod tests {
+    use clap::Parser;
+
+    use super::*;
+    use crate::cli::{Cli, Command};
+
+    fn configs_dir() -> PathBuf {
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("../../configs")
+    }
+
+    /// `anerf train <config>` applies its flags over the file, and `--set` over the flags.
+    #[test]
+    fn train_flags_override_a_config_file_and_set_overrides_the_flags() {
+        let file = configs_dir().join("zju_mocap/313.toml");
+        let cli = Cli::parse_from([
+            "anerf",
+            "train",
+            file.to_str().unwrap(),
+            "--preset",
+            "tiny",
+            "--iterations",
+            "7",
+            "--train-views",
+            "1,3",
+            "--train-frames",
+            "0:10",
+            "--novel-pose-frames",
+            "10:20:5",
+            "--set",
+            "train.iterations=9",
+        ]);
+        let Command::Train(args) = cli.command else {
+            panic!("parsed as another command")
+        };
+        let c = config(&args).unwrap();
+        let file_config = config::load(&file, &[]).unwrap();
+        assert_ne!(file_config.model, c.model, "the file's preset is not tiny");
+        assert_eq!(c.model, anerf_core::model::ModelPreset::Tiny.config());
+        assert_eq!(c.train.iterations, 9);
+        assert_eq!(c.dataset.train_views, vec![1, 3]);
+        assert_eq!(
+            c.dataset.split().train_frames.frames(),
+            (0..10).collect::<Vec<_>>()
+        );
+        assert_eq!(c.dataset.split().novel_pose_frames.frames(), vec![10, 15]);
+        let bad = Cli::try_parse_from([
+            "anerf",
+            "train",
+            file.to_str().unwrap(),
+            "--train-frames",
+            "9:3",
+        ]);
+        let err = bad.unwrap_err().to_string();
+        assert!(err.contains("--train-frames"), "{err}");
+    }
+}

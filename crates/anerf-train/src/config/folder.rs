@@ -1,0 +1,120 @@
+//! The config of a subject folder trained without a config file (`anerf train --data`).
+
+use std::path::Path;
+
+use anerf_data::DatasetKind;
+use anyhow::{Context, Result};
+use serde::Serialize;
+use toml::Table;
+
+use super::{defaults, merge, DatasetFormat, FrameRange, FrameSplit};
+
+/// What a folder gives a config: its name, layout and the split (from `splits.json`, written by
+/// `anerf synth`, or four evenly spaced cameras and the first two thirds of the frames).
+#[derive(Serialize)]
+struct FolderConfig {
+    name: String,
+    dataset: FolderDataset,
+    model: FolderModel,
+}
+
+#[derive(Serialize)]
+struct FolderDataset {
+    format: DatasetFormat,
+    root: String,
+    ratio: f32,
+    train_views: Vec<usize>,
+    iccv: FrameSplit,
+}
+
+#[derive(Serialize)]
+struct FolderModel {
+    preset: &'static str,
+}
+
+/// The defaults with the folder's values over them, for [`super::assemble`] with the command's flags.
+pub fn folder_table(data: &Path) -> Result<Table> {
+    let kind = anerf_data::loaders::detect_kind(data);
+    let subject = anerf_data::load(data, kind, &Default::default()).with_context(|| {
+        format!(
+            "reading {} (expected a subject folder in the ZJU-MoCap layout)",
+            data.display()
+        )
+    })?;
+    let cameras = subject.cameras.len();
+    let frames = subject.frames.len();
+    let splits: Option<anerf_data::synthetic::Splits> =
+        std::fs::read_to_string(data.join("splits.json"))
+            .ok()
+            .and_then(|t| serde_json::from_str(&t).ok());
+    let (train_views, iccv) = match &splits {
+        Some(s) => (
+            s.training_views.clone(),
+            FrameSplit {
+                train_frames: span(&s.training_frames),
+                novel_pose_frames: span(&s.novel_pose_frames),
+            },
+        ),
+        None => {
+            let n = 4.min(cameras);
+            let views: Vec<usize> = (0..n).map(|i| i * cameras / n).collect();
+            let cut = (frames * 2 / 3).max(1);
+            let range = |start, end| FrameRange {
+                start,
+                end,
+                step: 1,
+            };
+            (
+                views,
+                FrameSplit {
+                    train_frames: range(0, cut),
+                    novel_pose_frames: range(cut, frames.max(cut)),
+                },
+            )
+        }
+    };
+    let name = data
+        .file_name()
+        .and_then(|n| n.to_str())
+        .unwrap_or("subject")
+        .replace(['/', '\\'], "_");
+    // Full-HD captures train at half resolution, as the ZJU-MoCap configs do.
+    let ratio = if subject.cameras.first().is_some_and(|c| c.width >= 1000) {
+        0.5
+    } else {
+        1.0
+    };
+    let folder = FolderConfig {
+        name,
+        dataset: FolderDataset {
+            format: match kind {
+                DatasetKind::H36m => DatasetFormat::H36m,
+                _ => DatasetFormat::ZjuMocap,
+            },
+            root: data.display().to_string(),
+            ratio,
+            train_views,
+            iccv,
+        },
+        model: FolderModel { preset: "cpu" },
+    };
+    let mut table = defaults();
+    merge(
+        &mut table,
+        Table::try_from(folder).expect("a folder config serialises to TOML"),
+    );
+    Ok(table)
+}
+
+/// The range covering a sorted list of consecutive frame indices (`splits.json` lists them explicitly).
+fn span(frames: &[usize]) -> FrameRange {
+    let (start, end) = match (frames.first(), frames.last()) {
+        (Some(a), Some(b)) => (*a, b + 1),
+        _ => (0, 0),
+    };
+    FrameRange {
+        start,
+        end,
+        step: 1,
+    }
+}

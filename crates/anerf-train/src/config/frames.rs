@@ -1,0 +1,83 @@
+//! Frame ranges `start:end[:step]` of configs and command lines.
+
+use serde::{Deserialize, Serialize};
+
+/// A half-open range of frame indices `start..end` stepping by `step`, written `"start:end"` or
+/// `"start:end:step"` in configs and on the command line.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct FrameRange {
+    pub start: usize,
+    pub end: usize,
+    pub step: usize,
+}
+
+impl FrameRange {
+    /// The frame indices.
+    pub fn frames(&self) -> Vec<usize> {
+        (self.start..self.end).step_by(self.step.max(1)).collect()
+    }
+
+    /// Number of frames.
+    pub fn len(&self) -> usize {
+        self.frames().len()
+    }
+
+    /// True when the range holds no frame.
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+}
+
+impl std::str::FromStr for FrameRange {
+    type Err = String;
+
+    fn from_str(s: &str) -> Result<Self, String> {
+        let parts: Vec<&str> = s.split(':').collect();
+        let num = |p: &str| {
+            p.trim()
+                .parse::<usize>()
+                .map_err(|_| format!("'{s}' is not a frame range start:end[:step]"))
+        };
+        let range = match parts.as_slice() {
+            [a, b] => FrameRange {
+                start: num(a)?,
+                end: num(b)?,
+                step: 1,
+            },
+            [a, b, c] => FrameRange {
+                start: num(a)?,
+                end: num(b)?,
+                step: num(c)?,
+            },
+            _ => return Err(format!("'{s}' is not a frame range start:end[:step]")),
+        };
+        if range.end < range.start || range.step == 0 {
+            return Err(format!("'{s}': expected start ≤ end and a positive step"));
+        }
+        Ok(range)
+    }
+}
+
+impl std::fmt::Display for FrameRange {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        if self.step == 1 {
+            write!(f, "{}:{}", self.start, self.end)
+        } else {
+            write!(f, "{}:{}:{}", self.start, self.end, self.step)
+        }
+    }
+}
+
+impl Serialize for FrameRange {
+    fn serialize<S: serde::Serializer>(&self, s: S) -> Result<S::Ok, S::Error> {
+        s.serialize_str(&self.to_string())
+    }
+}
+
+impl<'de> Deserialize<'de> for FrameRange {
+    fn deserialize<D: serde::Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
+        String::deserialize(d)?
+            .parse()
+            .map_err(serde::de::Error::custom)
+    }
+}

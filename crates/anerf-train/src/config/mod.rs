@@ -1,0 +1,277 @@
+//! Experiment configuration: TOML files with inheritance (`base = "…"`), command-line overrides
+//! (`--set section.key=value`) and validation whose errors name the key and the allowed values.
+
+use std::path::{Path, PathBuf};
+
+use anerf_core::model::ModelConfig;
+use anerf_core::DeviceChoice;
+use serde::{Deserialize, Serialize};
+use toml::{Table, Value};
+
+mod folder;
+mod frames;
+mod presets;
+mod sources;
+#[cfg(test)]
+mod tests;
+mod validate;
+
+pub use folder::folder_table;
+pub use frames::FrameRange;
+pub use presets::{preset_help, preset_schedule, preset_short_help, PresetSchedule};
+pub use sources::{
+    apply_override, assemble, defaults, demo_table, from_table, load, load_with, merge, with_overrides, Settings,
+    DEMO_CONFIG,
+};
+pub use validate::validate;
+
+/// Errors while reading, merging or validating a configuration.
+#[derive(Debug, thiserror::Error)]
+pub enum ConfigError {
+    #[error("cannot read config {path}: {source}")]
+    Read {
+        path: PathBuf,
+        source: std::io::Error,
+    },
+    #[error("config {path} is not valid TOML: {message}")]
+    Parse { path: PathBuf, message: String },
+    #[error("config {path}: `base` chain loops back to {again}")]
+    BaseCycle { path: PathBuf, again: PathBuf },
+    #[error("override `{0}` is not of the form section.key=value")]
+    BadOverride(String),
+    #[error("invalid config: {0}")]
+    Invalid(String),
+}
+
+/// Dataset layouts anerf reads.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum DatasetFormat {
+    /// ZJU-MoCap (also the layout `anerf synth` writes).
+    ZjuMocap,
+    /// The processed Human3.6M layout of the authors.
+    H36m,
+}
+
+impl DatasetFormat {
+    /// The loader's name for the layout.
+    pub fn kind(self) -> anerf_data::DatasetKind {
+        match self {
+            DatasetFormat::ZjuMocap => anerf_data::DatasetKind::ZjuMocap,
+            DatasetFormat::H36m => anerf_data::DatasetKind::H36m,
+        }
+    }
+}
+
+/// Which published frame ranges a subject config uses.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
+#[serde(rename_all = "snake_case")]
+pub enum RangeSet {
+    /// The ICCV configs of the paper.
+    #[default]
+    Iccv,
+    /// The TPAMI / Neural Body ranges.
+    Tpami,
+}
+
+impl RangeSet {
+    /// The set's key in `[dataset]` (`iccv`, `tpami`).
+    pub fn key(self) -> &'static str {
+        match self {
+            RangeSet::Iccv => "iccv",
+            RangeSet::Tpami => "tpami",
+        }
+    }
+}
+
+/// Training and novel-pose frames of one range set.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct FrameSplit {
+    pub train_frames: FrameRange,
+    pub novel_pose_frames: FrameRange,
+}
+
+/// How blend-weight volumes are obtained.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
+#[serde(rename_all = "snake_case")]
+pub enum VolumeSource {
+    /// Nearest surface point with barycentric weights (the paper), computed by `anerf prepare`.
+    #[default]
+    Surface,
+    /// Nearest vertex (the reference's `bweights/`), computed by `anerf prepare`.
+    NearestVertex,
+    /// The dataset's own `lbs/tbw.npy` and `lbs/bweights/` files.
+    Dataset,
+}
+
+/// `[dataset]`: where the data is and which views and frames to use.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct DatasetConfig {
+    pub format: DatasetFormat,
+    /// The subject folder (relative paths are relative to the directory anerf runs in).
+    pub root: PathBuf,
+    /// Image scale factor applied after undistortion (0.5 for ZJU-MoCap, 1 for H36M).
+    pub ratio: f32,
+    pub train_views: Vec<usize>,
+    /// Views used for evaluation; empty means every view not used for training.
+    #[serde(default)]
+    pub test_views: Vec<usize>,
+    #[serde(default)]
+    pub ranges: RangeSet,
+    pub iccv: FrameSplit,
+    /// The TPAMI / Neural Body ranges (defaults to the ICCV ones where they agree).
+    #[serde(default)]
+    pub tpami: Option<FrameSplit>,
+    /// Every n-th frame of the ranges (5 for H36M).
+    #[serde(default = "one")]
+    pub frame_interval: usize,
+    #[serde(default)]
+    pub volumes: VolumeSource,
+    /// A body-model file (SMPL `.npz` or `.pkl`) when `lbs/` has no weights and faces.
+    #[serde(default)]
+    pub body_model: Option<PathBuf>,
+    /// Where `anerf prepare` writes its cache.
+    #[serde(default = "default_cache")]
+    pub cache: PathBuf,
+}
+
+fn one() -> usize {
+    1
+}
+
+fn default_cache() -> PathBuf {
+    PathBuf::from("cache")
+}
+
+impl DatasetConfig {
+    /// Resolves `root`, `cache` and `body_model` against the working directory, as written into a run's
+    /// config, so that the run can be evaluated from any folder.
+    pub fn make_paths_absolute(&mut self) -> Result<(), ConfigError> {
+        let absolute = |key: &str, p: &Path| {
+            std::path::absolute(p).map_err(|e| {
+                ConfigError::Invalid(format!(
+                    "dataset.{key}: cannot resolve {}: {e}",
+                    p.display()
+                ))
+            })
+        };
+        self.root = absolute("root", &self.root)?;
+        self.cache = absolute("cache", &self.cache)?;
+        if let Some(b) = &self.body_model {
+            self.body_model = Some(absolute("body_model", b)?);
+        }
+        Ok(())
+    }
+
+    /// The frame split selected by `ranges`.
+    pub fn split(&self) -> &FrameSplit {
+        match (self.ranges, &self.tpami) {
+            (RangeSet::Tpami, Some(t)) => t,
+            _ => &self.iccv,
+        }
+    }
+}
+
+/// The learning-rate schedule.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
+#[serde(rename_all = "snake_case")]
+pub enum LrSchedule {
+    /// Exponential decay from `lr` to `lr_final` over the run (the paper).
+    #[default]
+    Paper,
+    /// `lr · 0.1^(epoch/1000)` with 500-iteration epochs (the authors' code).
+    Code,
+}
+
+/// `[train]` and `[animate]`: one optimisation stage.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct StageConfig {
+    pub iterations: usize,
+    /// Rays per batch (stage 1) or points per set (stage 2).
+    pub batch: usize,
+    pub lr: f64,
+    pub lr_final: f64,
+    #[serde(default)]
+    pub schedule: LrSchedule,
+    /// Gradient values are clipped to ±this (the code uses 40); 0 disables clipping.
+    pub grad_clip: f32,
+    pub checkpoint_every: usize,
+    pub validate_every: usize,
+    pub log_every: usize,
+    /// Stage 1: never draw rays from the 5×5 band around mask edges (the reference's `erode_edge`, for the
+    /// imprecise masks of real captures). Synthetic subjects have exact masks and turn it off.
+    #[serde(default = "default_true")]
+    pub skip_mask_edges: bool,
+    /// Stage 1: weight of the silhouette loss `mean((acc − m)²)`, the rendered opacity against the mask
+    /// (1 on body pixels, 0 elsewhere); 0 disables it (the paper fits colours alone).
+    #[serde(default)]
+    pub mask_weight: f32,
+    /// Weight of `mean(F²)`, the penalty on the blend-weight residual that keeps the neural weights at the
+    /// body model's where the data does not ask otherwise; 0 disables it.
+    #[serde(default)]
+    pub residual_weight: f32,
+    /// Stop early once the loss, averaged over each `log_every` window, has not fallen by
+    /// `plateau_tolerance` (relative) below its best for this many steps; 0 never stops early.
+    #[serde(default)]
+    pub plateau_steps: usize,
+    /// Relative improvement that counts as progress for `plateau_steps`.
+    #[serde(default = "default_plateau_tolerance")]
+    pub plateau_tolerance: f32,
+}
+
+fn default_plateau_tolerance() -> f32 {
+    0.01
+}
+
+fn default_true() -> bool {
+    true
+}
+
+/// `[eval]`.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct EvalConfig {
+    /// Every n-th frame of a split is evaluated (30 on ZJU-MoCap, 6 on H36M).
+    pub frame_interval: usize,
+    /// Rays rendered per chunk.
+    pub chunk: usize,
+    /// A rendered ray stops once its transmittance falls below this (early ray termination): the colour and
+    /// opacity it would still gather are smaller. 0 shades every sample that survives culling.
+    #[serde(default = "default_termination")]
+    pub termination: f32,
+}
+
+/// The default [`EvalConfig::termination`]: a 40th of an 8-bit grey level.
+fn default_termination() -> f32 {
+    1e-4
+}
+
+/// A whole experiment, as resolved from its files and overrides.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ExperimentConfig {
+    pub name: String,
+    pub seed: u64,
+    pub device: DeviceChoice,
+    pub dataset: DatasetConfig,
+    pub model: ModelConfig,
+    pub train: StageConfig,
+    pub animate: StageConfig,
+    pub eval: EvalConfig,
+}
+
+/// `[model] preset` of a resolved config: every model field is listed, no preset applies.
+const RESOLVED: &str = "none";
+
+/// The config as TOML, as written into a run folder: loadable as a config file again, with
+/// `[model] preset = "none"` because the section lists every field.
+pub fn to_toml(c: &ExperimentConfig) -> String {
+    let mut table = Table::try_from(c).expect("configs serialise to TOML");
+    if let Some(Value::Table(model)) = table.get_mut("model") {
+        model.insert("preset".into(), Value::String(RESOLVED.into()));
+    }
+    toml::to_string_pretty(&table).expect("configs serialise to TOML")
+}

@@ -1,0 +1,187 @@
+//! Model presets in configs: `[model] preset = "…"` expands to the preset's model, and each preset brings
+//! the schedule it trains with where no file, flag or override gives one.
+
+use anerf_core::model::ModelPreset;
+use toml::{Table, Value};
+
+use super::sources::merge;
+use super::{ConfigError, RESOLVED};
+
+/// The step counts, stage-2 batch and silhouette weight a model preset trains with where no file, flag or
+/// override gives them.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct PresetSchedule {
+    /// `train.iterations`.
+    pub train_iterations: usize,
+    /// `animate.iterations`.
+    pub animate_iterations: usize,
+    /// `animate.batch` (points per set).
+    pub animate_batch: usize,
+    /// `animate.plateau_steps` (0: no early stop).
+    pub animate_plateau_steps: usize,
+    /// `train.mask_weight` (0: colours alone, as the paper).
+    pub train_mask_weight: f32,
+}
+
+/// The schedule of each model preset.
+pub fn preset_schedule(preset: ModelPreset) -> PresetSchedule {
+    match preset {
+        // The paper's 200k stage-1 steps and its 10k stage-2 steps, at the authors' code's 65,536 points
+        // per set (docs/REFERENCE.md §3.6); the CPU-sized frequency model keeps them (it converges no
+        // faster).
+        ModelPreset::Paper | ModelPreset::Cpu => PresetSchedule {
+            train_iterations: 200_000,
+            animate_iterations: 10_000,
+            animate_batch: 65_536,
+            animate_plateau_steps: 0,
+            train_mask_weight: 0.0,
+        },
+        // Hash grids: 5,000 steps train the realistic subject in under eight minutes on 2 cores; stage 2
+        // starts at the body model's weights and its novel-pose PSNR moves by less than 0.1 dB after that
+        // (docs/QUALITY.md), so a few hundred steps of 16,384 points, stopped once the consistency loss
+        // stops falling. The silhouette loss clears the hash grid's floaters and edge haze: held-out views
+        // and novel poses gain on the realistic and demo subjects (docs/QUALITY.md).
+        ModelPreset::Fast => PresetSchedule {
+            train_iterations: 5_000,
+            animate_iterations: 300,
+            animate_batch: 16_384,
+            animate_plateau_steps: 100,
+            train_mask_weight: 0.1,
+        },
+        ModelPreset::Tiny => PresetSchedule {
+            train_iterations: 200,
+            animate_iterations: 50,
+            animate_batch: 4_096,
+            animate_plateau_steps: 0,
+            train_mask_weight: 0.0,
+        },
+    }
+}
+
+/// The short help of `--preset`: every preset's name, from the registry.
+pub fn preset_short_help() -> String {
+    let names: Vec<&str> = ModelPreset::ALL.iter().map(|p| p.name()).collect();
+    format!(
+        "Model preset ({}); --help lists each one's schedule",
+        names.join(", ")
+    )
+}
+
+/// The long help of `--preset`: each preset's schedule.
+pub fn preset_help() -> String {
+    let mut text = String::from(
+        "Model preset; without --iterations (or train.iterations in the config) each trains its own schedule:",
+    );
+    for p in ModelPreset::ALL {
+        let s = preset_schedule(p);
+        text.push_str(&format!(
+            "\n  {:<6} stage 1 {} iterations{}, stage 2 {} iterations of {} points{}",
+            p.name(),
+            s.train_iterations,
+            mask_note(s.train_mask_weight),
+            s.animate_iterations,
+            s.animate_batch,
+            plateau_note(s.animate_plateau_steps)
+        ));
+    }
+    text
+}
+
+/// How `--help` says that a stage stops early.
+pub(super) fn plateau_note(steps: usize) -> String {
+    if steps == 0 {
+        String::new()
+    } else {
+        format!(" (stops once its loss has not fallen for {steps} steps)")
+    }
+}
+
+pub(super) fn mask_note(weight: f32) -> String {
+    if weight == 0.0 {
+        String::new()
+    } else {
+        format!(" with a silhouette loss of weight {weight}")
+    }
+}
+
+/// Fills `train.iterations`, `train.mask_weight`, `animate.iterations`, `animate.batch` and
+/// `animate.plateau_steps` where no file or override gave them.
+pub(super) fn default_schedule(table: &mut Table, schedule: PresetSchedule) {
+    let as_int = |n: usize| Value::Integer(n as i64);
+    for (stage, key, value) in [
+        ("train", "iterations", as_int(schedule.train_iterations)),
+        ("animate", "iterations", as_int(schedule.animate_iterations)),
+        ("animate", "batch", as_int(schedule.animate_batch)),
+        (
+            "animate",
+            "plateau_steps",
+            as_int(schedule.animate_plateau_steps),
+        ),
+        (
+            "train",
+            "mask_weight",
+            Value::Float(schedule.train_mask_weight as f64),
+        ),
+    ] {
+        if let Some(Value::Table(t)) = table.get_mut(stage) {
+            t.entry(key).or_insert(value);
+        }
+    }
+}
+
+/// Replaces `[model] preset = "…"` by the preset's full configuration with the other `[model]` keys on top,
+/// and returns the preset. With `preset = "none"` (or none at all) the section must list every field, as a
+/// saved, resolved config does.
+pub(super) fn expand_model_preset(table: &mut Table) -> Result<Option<ModelPreset>, ConfigError> {
+    let mut model = match table.remove("model") {
+        Some(Value::Table(t)) => t,
+        None => Table::new(),
+        Some(_) => return Err(ConfigError::Invalid("`model` must be a section".into())),
+    };
+    let preset = match model.remove("preset") {
+        // A resolved config (as saved in a run folder) lists every field itself.
+        Some(Value::String(name)) if name == RESOLVED => None,
+        None => None,
+        Some(Value::String(name)) => Some(
+            name.parse::<ModelPreset>()
+                .map_err(|e| ConfigError::Invalid(format!("model.preset: {e}")))?,
+        ),
+        Some(other) => {
+            return Err(ConfigError::Invalid(format!(
+                "model.preset = {other}: expected a preset name"
+            )))
+        }
+    };
+    let Some(preset) = preset else {
+        table.insert("model".into(), Value::Table(model));
+        return Ok(None);
+    };
+    let mut full = Table::try_from(preset.config()).expect("model configs serialise to TOML");
+    merge(&mut full, model);
+    table.insert("model".into(), Value::Table(full));
+    Ok(Some(preset))
+}
+
+/// Fills `lr` and `lr_final` of `[train]` and `[animate]` where no file or override gave them, from the
+/// model's point encoding: the paper's 5e-4 → 5e-5 for frequency encodings, Instant-NGP's 1e-2 → 1e-3 for
+/// hash grids (whose tables barely move at the paper's rate).
+pub(super) fn default_learning_rates(table: &mut Table) {
+    let hash_grid = table
+        .get("model")
+        .and_then(|m| m.get("encoding"))
+        .and_then(|e| e.get("kind"))
+        .and_then(Value::as_str)
+        == Some("hash_grid");
+    let (lr, lr_final) = if hash_grid {
+        (1e-2, 1e-3)
+    } else {
+        (5e-4, 5e-5)
+    };
+    for stage in ["train", "animate"] {
+        if let Some(Value::Table(t)) = table.get_mut(stage) {
+            t.entry("lr").or_insert(Value::Float(lr));
+            t.entry("lr_final").or_insert(Value::Float(lr_final));
+        }
+    }
+}
+

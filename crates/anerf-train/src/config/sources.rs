@@ -1,0 +1,251 @@
+//! Where a config's values come from, in the order they apply: the built-in defaults, a file and its
+//! `base` chain (or another table), a command's typed [`Settings`], then `--set` strings.
+
+use std::path::{Path, PathBuf};
+
+use toml::{Table, Value};
+
+use anerf_core::model::ModelPreset;
+
+use super::presets::{default_learning_rates, default_schedule, expand_model_preset, preset_schedule};
+use super::{validate, ConfigError, ExperimentConfig, FrameRange, RangeSet};
+
+/// Reads `path`, follows its `base` chain (paths relative to the file naming them), applies `overrides`
+/// (`section.key=value`, the value parsed as TOML or taken as a string), expands `[model] preset`, and
+/// validates.
+pub fn load(path: &Path, overrides: &[String]) -> Result<ExperimentConfig, ConfigError> {
+    load_with(path, &Settings::default(), overrides)
+}
+
+/// [`load`] with typed `settings` between the file and the overrides.
+pub fn load_with(
+    path: &Path,
+    settings: &Settings,
+    overrides: &[String],
+) -> Result<ExperimentConfig, ConfigError> {
+    assemble(read_chain(path, &mut Vec::new())?, settings, overrides)
+}
+
+/// Builds a config from an already merged table (defaults, presets, validation).
+pub fn from_table(mut table: Table) -> Result<ExperimentConfig, ConfigError> {
+    table.remove("base");
+    if let Some(preset) = expand_model_preset(&mut table)? {
+        default_schedule(&mut table, preset_schedule(preset));
+    }
+    default_learning_rates(&mut table);
+    let config: ExperimentConfig = serde_path_to_error::deserialize(Value::Table(table))
+        .map_err(|e| ConfigError::Invalid(format!("{}: {}", e.path(), e.inner().message())))?;
+    validate(&config)?;
+    Ok(config)
+}
+
+/// The built-in defaults every config starts from (`configs/` files override them).
+pub fn defaults() -> Table {
+    toml::from_str(DEFAULTS).expect("built-in defaults are valid TOML")
+}
+
+const DEFAULTS: &str = r#"
+seed = 0
+device = "flex"
+
+[model]
+preset = "paper"
+
+[train]
+batch = 1024
+schedule = "paper"
+grad_clip = 40.0
+checkpoint_every = 5000
+validate_every = 5000
+log_every = 100
+
+[animate]
+schedule = "paper"
+grad_clip = 40.0
+checkpoint_every = 2000
+validate_every = 0
+log_every = 100
+
+[eval]
+frame_interval = 30
+chunk = 4096
+"#;
+
+fn read_chain(path: &Path, seen: &mut Vec<PathBuf>) -> Result<Table, ConfigError> {
+    let canonical = path.canonicalize().map_err(|source| ConfigError::Read {
+        path: path.into(),
+        source,
+    })?;
+    if seen.contains(&canonical) {
+        return Err(ConfigError::BaseCycle {
+            path: path.into(),
+            again: canonical,
+        });
+    }
+    seen.push(canonical.clone());
+    let text = std::fs::read_to_string(path).map_err(|source| ConfigError::Read {
+        path: path.into(),
+        source,
+    })?;
+    let mut table: Table = toml::from_str(&text).map_err(|e| ConfigError::Parse {
+        path: path.into(),
+        message: e.to_string(),
+    })?;
+    let dir = canonical
+        .parent()
+        .map(Path::to_path_buf)
+        .unwrap_or_default();
+    let base = match table.remove("base") {
+        Some(Value::String(b)) => read_chain(&dir.join(b), seen)?,
+        Some(other) => {
+            return Err(ConfigError::Invalid(format!(
+                "{}: `base` must be a file name, got {other}",
+                path.display()
+            )))
+        }
+        None => defaults(),
+    };
+    let mut merged = base;
+    merge(&mut merged, table);
+    Ok(merged)
+}
+
+/// Deep-merges `over` into `base`: tables merge key by key, anything else replaces.
+pub fn merge(base: &mut Table, over: Table) {
+    for (k, v) in over {
+        match (base.get_mut(&k), v) {
+            (Some(Value::Table(b)), Value::Table(o)) => merge(b, o),
+            (_, v) => {
+                base.insert(k, v);
+            }
+        }
+    }
+}
+
+/// Applies one `section.key=value` override (`--set`): the value is parsed as TOML, else taken as a string.
+pub fn apply_override(table: &mut Table, text: &str) -> Result<(), ConfigError> {
+    let (key, value) = text
+        .split_once('=')
+        .ok_or_else(|| ConfigError::BadOverride(text.into()))?;
+    let path: Vec<&str> = key.trim().split('.').collect();
+    if path.iter().any(|p| p.is_empty()) {
+        return Err(ConfigError::BadOverride(text.into()));
+    }
+    let value = value.trim();
+    let parsed = toml::from_str::<Table>(&format!("v = {value}"))
+        .ok()
+        .and_then(|mut t| t.remove("v"))
+        .unwrap_or_else(|| Value::String(value.to_string()));
+    set_value(table, &path, parsed)
+        .map_err(|p| ConfigError::Invalid(format!("override `{text}`: `{p}` is not a section")))
+}
+
+/// Sets the value at a key path, making the sections on the way; the error is the first key on the way
+/// that holds a value instead of a section.
+fn set_value(table: &mut Table, path: &[&str], value: Value) -> Result<(), String> {
+    let (last, sections) = path.split_last().expect("a key path has a key");
+    let mut node = table;
+    for p in sections {
+        node = match node
+            .entry(p.to_string())
+            .or_insert_with(|| Value::Table(Table::new()))
+        {
+            Value::Table(t) => t,
+            _ => return Err(p.to_string()),
+        };
+    }
+    node.insert(last.to_string(), value);
+    Ok(())
+}
+
+/// Values a command sets over a config's tables, typed (command-line flags, the demo's and the benchmark's
+/// folders). They apply after the tables and before `--set`.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct Settings {
+    /// `dataset.root`: the subject folder.
+    pub root: Option<PathBuf>,
+    /// `dataset.cache`: where prepared data goes.
+    pub cache: Option<PathBuf>,
+    /// `model.preset`, which also brings the preset's schedule where nothing else gives one.
+    pub preset: Option<ModelPreset>,
+    /// `dataset.train_views`.
+    pub train_views: Option<Vec<usize>>,
+    /// `dataset.iccv.train_frames`; a frame range also selects the ICCV ranges (`dataset.ranges`).
+    pub train_frames: Option<FrameRange>,
+    /// `dataset.iccv.novel_pose_frames`, as `train_frames`.
+    pub novel_pose_frames: Option<FrameRange>,
+    /// `train.iterations`.
+    pub iterations: Option<usize>,
+}
+
+impl Settings {
+    /// Writes the given values into `table`.
+    pub fn apply(&self, table: &mut Table) {
+        let path_value = |p: &Path| Value::String(p.display().to_string());
+        let mut set = |path: &[&str], value: Value| {
+            set_value(table, path, value).expect("the built-in sections are tables after deserialising")
+        };
+        if let Some(p) = &self.root {
+            set(&["dataset", "root"], path_value(p));
+        }
+        if let Some(p) = &self.cache {
+            set(&["dataset", "cache"], path_value(p));
+        }
+        if let Some(p) = self.preset {
+            set(&["model", "preset"], Value::String(p.name().into()));
+        }
+        if let Some(v) = &self.train_views {
+            set(&["dataset", "train_views"], Value::Array(v.iter().map(|&i| Value::Integer(i as i64)).collect()));
+        }
+        let ranges = [
+            ("train_frames", self.train_frames),
+            ("novel_pose_frames", self.novel_pose_frames),
+        ];
+        for (key, range) in ranges {
+            if let Some(r) = range {
+                set(&["dataset", "iccv", key], Value::String(r.to_string()));
+            }
+        }
+        if ranges.iter().any(|(_, r)| r.is_some()) {
+            set(&["dataset", "ranges"], Value::String(RangeSet::Iccv.key().into()));
+        }
+        if let Some(n) = self.iterations {
+            set(&["train", "iterations"], Value::Integer(n as i64));
+        }
+    }
+}
+
+/// A config from `table` (merged over the defaults already), then `settings`, then the `--set` strings.
+pub fn assemble(
+    mut table: Table,
+    settings: &Settings,
+    set: &[String],
+) -> Result<ExperimentConfig, ConfigError> {
+    settings.apply(&mut table);
+    for o in set {
+        apply_override(&mut table, o)?;
+    }
+    from_table(table)
+}
+
+/// `config` with `--set` strings applied over it (a run's saved config, for one command).
+pub fn with_overrides(config: ExperimentConfig, set: &[String]) -> Result<ExperimentConfig, ConfigError> {
+    if set.is_empty() {
+        return Ok(config);
+    }
+    let table: Table = toml::from_str(&super::to_toml(&config)).expect("a saved config reads back");
+    assemble(table, &Settings::default(), set)
+}
+
+/// The experiment of `anerf demo` (also `configs/demo.toml`).
+pub const DEMO_CONFIG: &str = include_str!("../../../../configs/demo.toml");
+
+/// The defaults with `configs/demo.toml` over them; the demo and the benchmark set its folders.
+pub fn demo_table() -> Table {
+    let mut table = defaults();
+    merge(
+        &mut table,
+        toml::from_str(DEMO_CONFIG).expect("the demo config is valid TOML"),
+    );
+    table
+}

@@ -1,0 +1,183 @@
+use anerf_core::model::ModelPreset;
+
+use super::presets::{mask_note, plateau_note};
+use super::*;
+
+fn write(dir: &Path, name: &str, text: &str) -> PathBuf {
+    let p = dir.join(name);
+    std::fs::write(&p, text).unwrap();
+    p
+}
+
+const SUBJECT: &str = r#"
+name = "s"
+[dataset]
+format = "zju_mocap"
+root = "data/x"
+ratio = 0.5
+train_views = [0, 6]
+iccv = { train_frames = "0:60", novel_pose_frames = "60:1060" }
+[model]
+preset = "tiny"
+width = 48
+"#;
+
+#[test]
+fn inheritance_overrides_and_presets() {
+    let dir = tempfile::tempdir().unwrap();
+    write(dir.path(), "base.toml", SUBJECT);
+    let child = write(
+        dir.path(),
+        "child.toml",
+        "base = \"base.toml\"\nname = \"child\"\n[train]\niterations = 7\n",
+    );
+    let c = load(
+        &child,
+        &["train.batch=64".into(), "dataset.ranges=iccv".into()],
+    )
+    .unwrap();
+    assert_eq!(c.name, "child");
+    assert_eq!(
+        (c.train.iterations, c.train.batch, c.train.lr),
+        (7, 64, 5e-4)
+    );
+    // The preset's sizes with the file's override on top.
+    let tiny = ModelPreset::Tiny.config();
+    assert_eq!((c.model.width, c.model.depth), (48, tiny.depth));
+    assert_eq!(
+        c.dataset.split().train_frames.frames(),
+        (0..60).collect::<Vec<_>>()
+    );
+    // The resolved config round-trips through its TOML.
+    let again = from_table(toml::from_str(&to_toml(&c)).unwrap()).unwrap();
+    assert_eq!(again, c);
+    let saved = write(dir.path(), "resolved.toml", &to_toml(&c));
+    assert_eq!(load(&saved, &[]).unwrap(), c);
+}
+
+/// Without `lr` in any file, the rates follow the encoding; a given rate is kept.
+#[test]
+fn learning_rates_default_by_encoding() {
+    let dir = tempfile::tempdir().unwrap();
+    let p = write(dir.path(), "s.toml", SUBJECT);
+    let rates = |c: &ExperimentConfig| {
+        (
+            c.train.lr,
+            c.train.lr_final,
+            c.animate.lr,
+            c.animate.lr_final,
+        )
+    };
+    assert_eq!(rates(&load(&p, &[]).unwrap()), (5e-4, 5e-5, 5e-4, 5e-5));
+    let fast = load(&p, &["model.preset=fast".into()]).unwrap();
+    assert_eq!(rates(&fast), (1e-2, 1e-3, 1e-2, 1e-3));
+    let given = load(&p, &["model.preset=fast".into(), "train.lr=3e-3".into()]).unwrap();
+    assert_eq!(rates(&given), (3e-3, 1e-3, 1e-2, 1e-3));
+}
+
+#[test]
+fn errors_name_the_key_and_the_allowed_values() {
+    let dir = tempfile::tempdir().unwrap();
+    let p = write(dir.path(), "s.toml", SUBJECT);
+    let err = load(&p, &["model.preset=huge".into()])
+        .unwrap_err()
+        .to_string();
+    assert!(
+        err.contains("model.preset") && err.contains("paper, cpu, tiny"),
+        "{err}"
+    );
+    let err = load(&p, &["dataset.ratio=2".into()])
+        .unwrap_err()
+        .to_string();
+    assert!(err.contains("dataset.ratio"), "{err}");
+    let err = load(&p, &["train.schedule=cosine".into()])
+        .unwrap_err()
+        .to_string();
+    assert!(
+        err.contains("cosine") && err.contains("paper") && err.contains("code"),
+        "{err}"
+    );
+    let err = load(&p, &["train.typo=1".into()]).unwrap_err().to_string();
+    assert!(err.contains("typo"), "{err}");
+    let err = load(&p, &["device=tpu".into()]).unwrap_err().to_string();
+    assert!(err.contains("tpu") && err.contains("flex"), "{err}");
+    let err = load(&p, &["dataset.iccv.train_frames=9:3".into()])
+        .unwrap_err()
+        .to_string();
+    assert!(err.contains("9:3"), "{err}");
+    assert!(matches!(
+        load(&p, &["nonsense".into()]),
+        Err(ConfigError::BadOverride(_))
+    ));
+}
+
+/// Without step counts in any file, each preset trains its own schedule; given ones are kept.
+#[test]
+fn presets_carry_their_schedules() {
+    let dir = tempfile::tempdir().unwrap();
+    let p = write(dir.path(), "s.toml", SUBJECT);
+    let steps =
+        |c: &ExperimentConfig| (c.train.iterations, c.animate.iterations, c.animate.batch);
+    for preset in ModelPreset::ALL {
+        let c = load(&p, &[format!("model.preset={}", preset.name())]).unwrap();
+        let s = preset_schedule(preset);
+        assert_eq!(
+            steps(&c),
+            (s.train_iterations, s.animate_iterations, s.animate_batch)
+        );
+    }
+    assert_eq!(preset_schedule(ModelPreset::Fast).train_iterations, 5_000);
+    assert_eq!(
+        preset_schedule(ModelPreset::Paper).train_iterations,
+        200_000
+    );
+    let given = load(
+        &p,
+        &["model.preset=fast".into(), "train.iterations=7".into()],
+    )
+    .unwrap();
+    assert_eq!(steps(&given), (7, 300, 16_384));
+    assert_eq!(given.animate.plateau_steps, 100);
+    assert_eq!(given.train.mask_weight, 0.1);
+    let paper = load(&p, &["model.preset=paper".into()]).unwrap();
+    assert_eq!(paper.train.mask_weight, 0.0, "the paper fits colours alone");
+    let set = load(
+        &p,
+        &["model.preset=fast".into(), "train.mask_weight=0".into()],
+    )
+    .unwrap();
+    assert_eq!(set.train.mask_weight, 0.0, "a config's value wins");
+    let help = preset_help();
+    for preset in ModelPreset::ALL {
+        let s = preset_schedule(preset);
+        assert!(
+            help.contains(&format!(
+                "{:<6} stage 1 {} iterations{}, stage 2 {} iterations of {} points{}",
+                preset.name(),
+                s.train_iterations,
+                mask_note(s.train_mask_weight),
+                s.animate_iterations,
+                s.animate_batch,
+                plateau_note(s.animate_plateau_steps)
+            )),
+            "{help}"
+        );
+    }
+}
+
+#[test]
+fn base_cycles_are_reported() {
+    let dir = tempfile::tempdir().unwrap();
+    write(dir.path(), "a.toml", "base = \"b.toml\"");
+    let b = write(dir.path(), "b.toml", "base = \"a.toml\"");
+    assert!(matches!(load(&b, &[]), Err(ConfigError::BaseCycle { .. })));
+}
+
+#[test]
+fn frame_ranges_parse_and_print() {
+    let r: FrameRange = "10:20:5".parse().unwrap();
+    assert_eq!(r.frames(), vec![10, 15]);
+    assert_eq!(r.to_string(), "10:20:5");
+    assert!("5".parse::<FrameRange>().is_err());
+    assert!("0:10:0".parse::<FrameRange>().is_err());
+}

@@ -1,0 +1,91 @@
+//! Training a run's stages: stage 1 into a new (or resumed) run folder, stage 2 over a trained one.
+
+use std::path::Path;
+use std::sync::atomic::AtomicBool;
+
+use anyhow::{bail, Result};
+
+use super::{device, open_run, JobOptions};
+use crate::checkpoint::Checkpoint;
+use crate::config::ExperimentConfig;
+use crate::experiment::Experiment;
+use crate::memory::{self, Work};
+use crate::run_dir::RunDir;
+use crate::run_start::{self, RunStart};
+use crate::stage::Stage;
+use crate::training::{train_stage1, train_stage2, StageOutcome, TrainOptions};
+
+/// Stage 1 of `config` into `run`. The start is checked (`start`), the config validated and the data
+/// opened before the folder is touched; a start that fails before its first checkpoint removes what it
+/// made. `max_steps` stops early with a checkpoint; so does `stop` (set by Ctrl-C).
+pub fn train(
+    mut config: ExperimentConfig,
+    run: &Path,
+    options: &JobOptions,
+    start: RunStart,
+    max_steps: Option<usize>,
+    stop: &AtomicBool,
+) -> Result<StageOutcome> {
+    run_start::check_stage1(run, start)?;
+    if start == RunStart::Resume {
+        let existing = RunDir::open(run)?;
+        if existing.read_config()?.model != config.model {
+            bail!(
+                "--resume: the config's [model] differs from the run's {}",
+                existing.config_path().display()
+            );
+        }
+    }
+    config.dataset.make_paths_absolute()?;
+    memory::check(&config, Work::Train)?;
+    let device = device(&config, options)?.autodiff();
+    let mut exp = Experiment::open(config, device, options.progress)?;
+    let run = run_start::begin_stage1(run, start)?;
+    let result = run.write_config(&exp.config).and_then(|()| {
+        train_stage1(
+            &mut exp,
+            &run,
+            stage_options(start, options, max_steps),
+            stop,
+        )
+    });
+    result.inspect_err(|_| {
+        let kept = Checkpoint::latest(&run.checkpoints(), Stage::Train)
+            .ok()
+            .flatten()
+            .is_some();
+        if start != RunStart::Resume && !kept {
+            // Nothing worth keeping was made: leave no half-made run behind.
+            let _ = std::fs::remove_dir_all(&run.root);
+        }
+    })
+}
+
+/// Stage 2 of the run at `run` (`start` as for [`train`], over stage 2's checkpoints).
+pub fn animate(
+    run: &Path,
+    options: &JobOptions,
+    start: RunStart,
+    max_steps: Option<usize>,
+    stop: &AtomicBool,
+) -> Result<StageOutcome> {
+    let (run, config) = open_run(run, options, Work::Animate)?;
+    run_start::check_stage2(&run, start)?;
+    let device = device(&config, options)?.autodiff();
+    let mut exp = Experiment::open(config, device, options.progress)?;
+    run_start::begin_stage2(&run, start)?;
+    train_stage2(
+        &mut exp,
+        &run,
+        stage_options(start, options, max_steps),
+        stop,
+    )
+}
+
+fn stage_options(start: RunStart, options: &JobOptions, max_steps: Option<usize>) -> TrainOptions {
+    TrainOptions {
+        resume: start == RunStart::Resume,
+        progress: options.progress,
+        max_steps,
+    }
+}

@@ -1,0 +1,209 @@
+//! The loop every fit runs: it stops on Ctrl-C, a step limit or a loss plateau, checks each loss, steps
+//! the optimiser, keeps the log window, validates, logs, checkpoints and draws progress. What a step
+//! computes is the [`Step`] of its stage.
+
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::time::Instant;
+
+use anerf_core::model::AnimatableNerf;
+use anyhow::{bail, Result};
+use burn::optim::{GradientsParams, ModuleOptimizer};
+use burn::prelude::*;
+use serde::{Deserialize, Serialize};
+
+use super::schedule::{learning_rate, Plateau};
+use super::window::{StepValues, Window, WindowMeans};
+use super::{StageOutcome, TrainOptions};
+use crate::checkpoint::{Checkpoint, TrainerState};
+use crate::config::StageConfig;
+use crate::progress::StageProgress;
+use crate::run_dir::{MetricsLog, RunDir};
+use crate::stage::Stage;
+
+/// The loop's counters, saved with each checkpoint so that a resumed fit continues as if it had never
+/// stopped.
+#[derive(Debug, Clone, Default, Serialize, Deserialize)]
+pub struct LoopState {
+    /// Steps completed.
+    pub step: usize,
+    /// The early stop on a loss plateau (absent in checkpoints written before it existed).
+    #[serde(default)]
+    pub plateau: Plateau,
+    /// The log window open at this step (absent in checkpoints written before it existed).
+    #[serde(default)]
+    pub window: Window,
+}
+
+/// What one stage computes in a step; [`drive`] does everything around it.
+pub(super) trait Step {
+    /// The progress label ("stage 1").
+    fn label(&self) -> &'static str;
+    /// The loop's counters (inside the checkpointed state for the recorded stages).
+    fn counters(&mut self) -> &mut LoopState;
+    /// The loss of the next step, on the device, and its values for the log (`loss` on the host).
+    fn loss(&mut self, model: &AnimatableNerf) -> Result<(Tensor<1>, StepValues)>;
+    /// After the optimiser step that completed step `step` (stage 1 refreshes its occupancy grid).
+    fn after_step(&mut self, _model: &mut AnimatableNerf, _step: usize) {}
+    /// A held-out PSNR at `step`, when the stage validates.
+    fn validate(&mut self, _model: &AnimatableNerf, _step: usize) -> Result<Option<f64>> {
+        Ok(None)
+    }
+    /// The stage's own figures of a log line, and the progress message for it.
+    fn figures(&self, means: &WindowMeans, validation_psnr: Option<f64>)
+        -> (Option<RenderFigures>, String);
+    /// The state a checkpoint of this step saves (`None`: the fit is not recorded).
+    fn checkpointed(&self) -> Option<&TrainerState>;
+}
+
+/// Stage 1's figures in a line of `metrics.jsonl`: the rendering's.
+#[derive(Debug, Serialize)]
+pub(super) struct RenderFigures {
+    pub color_mse: f32,
+    pub psnr: f32,
+    /// Samples that survive culling / all samples.
+    pub surviving_fraction: f32,
+    /// Samples that reach the canonical NeRF (culling and the occupancy grid) / all samples.
+    pub nerf_fraction: f32,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub validation_psnr: Option<f64>,
+}
+
+/// One line of `metrics.jsonl`.
+#[derive(Debug, Serialize)]
+struct LogLine {
+    stage: Stage,
+    step: usize,
+    loss: f32,
+    blend: f32,
+    lr: f64,
+    items_per_second: f64,
+    #[serde(flatten)]
+    rendering: Option<RenderFigures>,
+}
+
+/// Where a recorded fit writes: checkpoints and the metrics log of its run folder.
+pub(super) struct Record<'a> {
+    run: &'a RunDir,
+    stage: Stage,
+    log: MetricsLog,
+}
+
+impl<'a> Record<'a> {
+    /// Records `stage` of `run` from step `step` on (later lines of an earlier attempt are dropped).
+    pub fn open(run: &'a RunDir, stage: Stage, step: usize) -> Result<Self> {
+        Ok(Self {
+            run,
+            stage,
+            log: MetricsLog::open(run.metrics_log(), stage, step)?,
+        })
+    }
+}
+
+/// Runs `step` from its counters to `cfg.iterations` steps (or a stop) and returns the model and how the
+/// fit ended. With a `record`, every `cfg.checkpoint_every` steps and at the end a checkpoint is written
+/// and every `cfg.log_every` steps a line of `metrics.jsonl`; without, nothing is written.
+pub(super) fn drive(
+    step: &mut impl Step,
+    mut model: AnimatableNerf,
+    mut optim: ModuleOptimizer,
+    cfg: &StageConfig,
+    options: TrainOptions,
+    stop: &AtomicBool,
+    record: Option<Record>,
+) -> Result<(AnimatableNerf, StageOutcome)> {
+    let first_step = step.counters().step;
+    let bar = StageProgress::new(step.label(), first_step, cfg.iterations, options.progress);
+    let started = Instant::now();
+    step.counters().window.start_clock();
+    let mut last_loss = f32::NAN;
+    let mut interrupted = false;
+    while step.counters().step < cfg.iterations && !step.counters().plateau.reached {
+        let done = step.counters().step;
+        if stop.load(Ordering::SeqCst) || options.max_steps.is_some_and(|m| done - first_step >= m)
+        {
+            interrupted = true;
+            break;
+        }
+        let (loss, values) = step.loss(&model)?;
+        if !values.loss.is_finite() {
+            bail!(
+                "{} stopped at step {done}: the loss is {}; {}",
+                step.label(),
+                values.loss,
+                match &record {
+                    Some(r) => format!(
+                        "the last good checkpoint in {} is kept (lower the learning rate or check the \
+                         data, then `--resume`)",
+                        r.run.checkpoints().display()
+                    ),
+                    None => "lower the learning rate".into(),
+                }
+            );
+        }
+        let lr = learning_rate(cfg, done);
+        let grads = GradientsParams::from_grads(loss.backward(), &model);
+        model = optim.step(lr, model, grads);
+        let done = done + 1;
+        step.counters().step = done;
+        step.after_step(&mut model, done);
+        last_loss = values.loss;
+        step.counters().window.add(values);
+
+        let validation_psnr = if cfg.validate_every > 0 && done % cfg.validate_every == 0 {
+            step.validate(&model, done)?
+        } else {
+            None
+        };
+        if done % cfg.log_every == 0 || done == cfg.iterations || validation_psnr.is_some() {
+            let means = step.counters().window.close();
+            let (rendering, message) = step.figures(&means, validation_psnr);
+            bar.report(done, &message);
+            if let Some(r) = &record {
+                r.log.append(&LogLine {
+                    stage: r.stage,
+                    step: done,
+                    loss: means.loss,
+                    blend: means.blend,
+                    lr,
+                    items_per_second: means.items_per_second,
+                    rendering,
+                })?;
+            }
+            step.counters().plateau.update(done, means.loss, cfg);
+        }
+        bar.set_step(done);
+        if cfg.checkpoint_every > 0 && done % cfg.checkpoint_every == 0 {
+            save(step, record.as_ref(), &model, &optim)?;
+        }
+    }
+    save(step, record.as_ref(), &model, &optim)?;
+    let steps = step.counters().step;
+    let ending = match (interrupted, step.counters().plateau.reached) {
+        (true, _) => "interrupted",
+        (false, true) => "stopped on a loss plateau",
+        (false, false) => "finished",
+    };
+    bar.finish(steps, ending);
+    let outcome = StageOutcome {
+        steps,
+        loss: last_loss,
+        interrupted,
+        seconds: started.elapsed().as_secs_f64(),
+    };
+    Ok((model, outcome))
+}
+
+/// A checkpoint of the step's state, when the fit is recorded.
+fn save(
+    step: &impl Step,
+    record: Option<&Record>,
+    model: &AnimatableNerf,
+    optim: &ModuleOptimizer,
+) -> Result<()> {
+    match (record, step.checkpointed()) {
+        (Some(r), Some(state)) => {
+            Checkpoint::save(&r.run.checkpoints(), state, model, optim).map(drop)
+        }
+        _ => Ok(()),
+    }
+}
