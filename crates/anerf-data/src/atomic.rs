@@ -128,7 +128,10 @@ mod tests {
             w.write_all(b"half of the sec").unwrap();
             Err(CallerError::Invalid("fails mid-write"))
         });
-        assert!(matches!(failure, Err(CallerError::Invalid("fails mid-write"))));
+        assert!(matches!(
+            failure,
+            Err(CallerError::Invalid("fails mid-write"))
+        ));
         assert_eq!(
             std::fs::read(&path).unwrap(),
             b"first",

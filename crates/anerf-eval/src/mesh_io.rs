@@ -9,8 +9,8 @@ use std::path::Path;
 
 use glam::Vec3;
 
-use anerf_data::atomic::write_with;
 use crate::error::EvalError;
+use anerf_data::atomic::write_with;
 
 /// Header comment of every PLY written here.
 const PLY_COMMENT: &str = "anerf mesh, lengths in metres";

@@ -13,13 +13,13 @@ use std::path::{Path, PathBuf};
 use anerf_core::{FrameId, ViewId};
 use serde::{Deserialize, Serialize};
 
-use anerf_data::atomic::write_with;
 use crate::error::EvalError;
 use crate::images::{
     quantised, read_mask, read_rgb, side_by_side, write_mask_png, write_png, PngDepth,
 };
 use crate::metrics::ImageMetrics;
 use crate::raster::{PixelMask, RgbImageF32};
+use anerf_data::atomic::write_with;
 
 /// The two evaluations of the paper.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]

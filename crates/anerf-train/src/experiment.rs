@@ -12,8 +12,8 @@ use anerf_data::{DatasetKind, LoadOptions, PrepareOptions, PreparedSubject};
 use anyhow::{bail, Context, Result};
 use burn::prelude::Device;
 
-use crate::progress::PhaseProgress;
 use crate::config::{ExperimentConfig, VolumeSource};
+use crate::progress::PhaseProgress;
 
 /// A config together with the data it names, ready for training, evaluation or rendering.
 pub struct Experiment {

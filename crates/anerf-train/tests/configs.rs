@@ -119,4 +119,3 @@ fn zju_mocap_ranges_match_the_reference() {
         (700, 1000, 0, 700)
     );
 }
-

@@ -9,8 +9,8 @@ use anerf_core::model::AnimatableNerf;
 use anerf_core::tensor::to_host;
 use anerf_core::FrameId;
 use anerf_data::synthetic::{write_subject, SyntheticSpec};
-use anerf_train::jobs;
 use anerf_train::experiment::Experiment;
+use anerf_train::jobs;
 use anerf_train::mesh::{repose, MeshJob};
 use common::tiny;
 
@@ -93,7 +93,10 @@ fn the_mesh_command_writes_canonical_reposed_and_posed_meshes() {
         posed_frames: vec![3],
         carve: true,
     };
-    let canonical = jobs::mesh(&run, &job, &common::quiet()).unwrap().canonical.ply;
+    let canonical = jobs::mesh(&run, &job, &common::quiet())
+        .unwrap()
+        .canonical
+        .ply;
     let meshes = run.join("meshes");
     assert_eq!(canonical, meshes.join("canonical.ply"));
     let (v, f) = ply_counts(&canonical);

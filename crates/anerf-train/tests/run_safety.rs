@@ -10,8 +10,8 @@ use std::sync::atomic::AtomicBool;
 
 use anerf_core::device::cpu_device;
 use anerf_train::checkpoint::Checkpoint;
-use anerf_train::jobs;
 use anerf_train::config::{self, ExperimentConfig};
+use anerf_train::jobs;
 use anerf_train::run_start::RunStart;
 use anerf_train::stage::Stage;
 use anerf_train::training::StageOutcome;

@@ -11,9 +11,9 @@ use std::time::{Duration, Instant};
 use anerf_core::device::cpu_device;
 use anerf_eval::ImageMetrics;
 use anerf_train::checkpoint::Checkpoint;
-use anerf_train::jobs;
 use anerf_train::config::{self, ExperimentConfig};
 use anerf_train::experiment::Experiment;
+use anerf_train::jobs;
 use anerf_train::render::render_view;
 use anerf_train::run_start::RunStart;
 use anerf_train::stage::Stage;
@@ -196,7 +196,11 @@ fn an_interrupt_leaves_a_loadable_checkpoint() {
         .unwrap()
         .expect("a checkpoint after Ctrl-C");
     let (_, state) = ck.load_model(&config.model, &cpu_device()).unwrap();
-    assert!(state.counters.step >= 3 && state.counters.step < 100000, "{}", state.counters.step);
+    assert!(
+        state.counters.step >= 3 && state.counters.step < 100000,
+        "{}",
+        state.counters.step
+    );
 }
 
 #[test]
@@ -325,7 +329,11 @@ fn a_diverging_run_stops_with_a_clear_message_and_keeps_the_last_good_checkpoint
         .unwrap()
         .expect("a checkpoint before the divergence");
     let (_, state) = ck.load_model(&config.model, &cpu_device()).unwrap();
-    assert!(state.counters.step >= 1 && state.counters.step < 20, "{}", state.counters.step);
+    assert!(
+        state.counters.step >= 1 && state.counters.step < 20,
+        "{}",
+        state.counters.step
+    );
 }
 
 /// With standard error redirected (as under nohup or SLURM) a run prints a start line, a plain line per

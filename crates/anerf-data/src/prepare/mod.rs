@@ -23,12 +23,12 @@ use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 use self::cache::{entry_dir, read_volume, volume_bytes, Fingerprint};
-use crate::atomic::write_bytes;
 pub use self::new_pose::PosedBody;
 pub use self::progress::{PrepareProgress, Silent};
 use self::resize::{resize_area, resize_nearest, scaled_size};
 use self::undistort::UndistortMap;
 pub use self::volumes::{compute_volume, NearestMethod, VolumeGrid};
+use crate::atomic::write_bytes;
 use crate::error::DataError;
 use crate::formats::{self, images};
 use crate::sampler::edge_band;

@@ -20,8 +20,8 @@ pub use folder::folder_table;
 pub use frames::FrameRange;
 pub use presets::{preset_help, preset_schedule, preset_short_help, PresetSchedule};
 pub use sources::{
-    apply_override, assemble, defaults, demo_table, from_table, load, load_with, merge, with_overrides, Settings,
-    DEMO_CONFIG,
+    apply_override, assemble, defaults, demo_table, from_table, load, load_with, merge,
+    with_overrides, Settings, DEMO_CONFIG,
 };
 pub use validate::validate;
 

@@ -184,4 +184,3 @@ pub(super) fn default_learning_rates(table: &mut Table) {
         }
     }
 }
-

@@ -129,4 +129,3 @@ pub fn validate(c: &ExperimentConfig) -> Result<(), ConfigError> {
     }
     Ok(())
 }
-

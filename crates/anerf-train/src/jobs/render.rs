@@ -64,7 +64,9 @@ pub fn render(run_path: &Path, job: RenderJob, options: &JobOptions) -> Result<R
     let model = load_trained(&run, &config, &device)?;
     let mut exp = Experiment::open(config, device, options.progress)?;
     let (name, frames) = match job {
-        RenderJob::PoseFiles { path, view } => render_pose_files(model, &exp, &path, view, options)?,
+        RenderJob::PoseFiles { path, view } => {
+            render_pose_files(model, &exp, &path, view, options)?
+        }
         RenderJob::Orbit { frame, views, size } => {
             let (name, shots) = orbit_shots(&exp, &model, frame, views, size)?;
             (

@@ -49,8 +49,11 @@ pub(super) trait Step {
         Ok(None)
     }
     /// The stage's own figures of a log line, and the progress message for it.
-    fn figures(&self, means: &WindowMeans, validation_psnr: Option<f64>)
-        -> (Option<RenderFigures>, String);
+    fn figures(
+        &self,
+        means: &WindowMeans,
+        validation_psnr: Option<f64>,
+    ) -> (Option<RenderFigures>, String);
     /// The state a checkpoint of this step saves (`None`: the fit is not recorded).
     fn checkpointed(&self) -> Option<&TrainerState>;
 }

@@ -50,14 +50,19 @@ pub fn train_stage2(
             resume_point(run, Stage::Animate, &model_cfg, cfg.grad_clip, &device)?;
         (model.freeze_stage1(), optim, state)
     } else {
-        let stage1 =
-            Checkpoint::restore_newest(&run.checkpoints(), Stage::Train, &model_cfg, &device, None)?
-                .with_context(|| {
-                    format!(
-                        "{} has no stage-1 checkpoint; run `anerf train` first",
-                        run.root.display()
-                    )
-                })?;
+        let stage1 = Checkpoint::restore_newest(
+            &run.checkpoints(),
+            Stage::Train,
+            &model_cfg,
+            &device,
+            None,
+        )?
+        .with_context(|| {
+            format!(
+                "{} has no stage-1 checkpoint; run `anerf train` first",
+                run.root.display()
+            )
+        })?;
         check_sizes(&stage1.state, exp)?;
         let seed = exp.config.seed;
         device.seed(stream_seed(seed, Stream::Stage2Device));

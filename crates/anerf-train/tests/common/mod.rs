@@ -6,8 +6,8 @@ use std::path::{Path, PathBuf};
 use std::sync::atomic::AtomicBool;
 
 use anerf_data::synthetic::{write_subject, SyntheticSpec};
-use anerf_train::jobs::{self, JobOptions};
 use anerf_train::config::{self, ExperimentConfig};
+use anerf_train::jobs::{self, JobOptions};
 use anerf_train::run_start::RunStart;
 use anerf_train::training::StageOutcome;
 

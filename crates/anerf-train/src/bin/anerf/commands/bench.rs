@@ -20,18 +20,18 @@ use anerf_core::model::{
 use anerf_core::render::color_mse;
 use anerf_core::tensor::from_rows;
 use anerf_core::DeviceChoice;
-use anyhow::{Context, Result};
-use burn::optim::{GradientsParams, ModuleOptimizer};
-use burn::prelude::*;
-use glam::{Mat4, Quat, Vec3};
-use rand::{Rng, SeedableRng};
-use rand_chacha::ChaCha8Rng;
 use anerf_train::config::{self, Settings};
 use anerf_train::experiment::Experiment;
 use anerf_train::jobs::load_trained;
 use anerf_train::render::render_view;
 use anerf_train::run_dir::RunDir;
 use anerf_train::training::optimizer;
+use anyhow::{Context, Result};
+use burn::optim::{GradientsParams, ModuleOptimizer};
+use burn::prelude::*;
+use glam::{Mat4, Quat, Vec3};
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
 use serde::Serialize;
 
 /// Options of `anerf bench`.
