@@ -7,7 +7,9 @@ use toml::{Table, Value};
 
 use anerf_core::model::ModelPreset;
 
-use super::presets::{default_learning_rates, default_schedule, expand_model_preset, preset_schedule};
+use super::presets::{
+    default_learning_rates, default_schedule, expand_model_preset, preset_schedule,
+};
 use super::{validate, ConfigError, ExperimentConfig, FrameRange, RangeSet};
 
 /// Reads `path`, follows its `base` chain (paths relative to the file naming them), applies `overrides`
@@ -179,23 +181,32 @@ pub struct Settings {
 }
 
 impl Settings {
-    /// Writes the given values into `table`.
-    pub fn apply(&self, table: &mut Table) {
+    /// Writes the given values into `table`; an error names a key of the file that holds a value where a
+    /// section is expected (`dataset = 5`).
+    pub fn apply(&self, table: &mut Table) -> Result<(), ConfigError> {
         let path_value = |p: &Path| Value::String(p.display().to_string());
         let mut set = |path: &[&str], value: Value| {
-            set_value(table, path, value).expect("the built-in sections are tables after deserialising")
+            set_value(table, path, value).map_err(|p| {
+                ConfigError::Invalid(format!(
+                    "`{p}` is not a section (setting {})",
+                    path.join(".")
+                ))
+            })
         };
         if let Some(p) = &self.root {
-            set(&["dataset", "root"], path_value(p));
+            set(&["dataset", "root"], path_value(p))?;
         }
         if let Some(p) = &self.cache {
-            set(&["dataset", "cache"], path_value(p));
+            set(&["dataset", "cache"], path_value(p))?;
         }
         if let Some(p) = self.preset {
-            set(&["model", "preset"], Value::String(p.name().into()));
+            set(&["model", "preset"], Value::String(p.name().into()))?;
         }
         if let Some(v) = &self.train_views {
-            set(&["dataset", "train_views"], Value::Array(v.iter().map(|&i| Value::Integer(i as i64)).collect()));
+            set(
+                &["dataset", "train_views"],
+                Value::Array(v.iter().map(|&i| Value::Integer(i as i64)).collect()),
+            )?;
         }
         let ranges = [
             ("train_frames", self.train_frames),
@@ -203,15 +214,19 @@ impl Settings {
         ];
         for (key, range) in ranges {
             if let Some(r) = range {
-                set(&["dataset", "iccv", key], Value::String(r.to_string()));
+                set(&["dataset", "iccv", key], Value::String(r.to_string()))?;
             }
         }
         if ranges.iter().any(|(_, r)| r.is_some()) {
-            set(&["dataset", "ranges"], Value::String(RangeSet::Iccv.key().into()));
+            set(
+                &["dataset", "ranges"],
+                Value::String(RangeSet::Iccv.key().into()),
+            )?;
         }
         if let Some(n) = self.iterations {
-            set(&["train", "iterations"], Value::Integer(n as i64));
+            set(&["train", "iterations"], Value::Integer(n as i64))?;
         }
+        Ok(())
     }
 }
 
@@ -221,7 +236,7 @@ pub fn assemble(
     settings: &Settings,
     set: &[String],
 ) -> Result<ExperimentConfig, ConfigError> {
-    settings.apply(&mut table);
+    settings.apply(&mut table)?;
     for o in set {
         apply_override(&mut table, o)?;
     }
@@ -229,7 +244,10 @@ pub fn assemble(
 }
 
 /// `config` with `--set` strings applied over it (a run's saved config, for one command).
-pub fn with_overrides(config: ExperimentConfig, set: &[String]) -> Result<ExperimentConfig, ConfigError> {
+pub fn with_overrides(
+    config: ExperimentConfig,
+    set: &[String],
+) -> Result<ExperimentConfig, ConfigError> {
     if set.is_empty() {
         return Ok(config);
     }

@@ -116,8 +116,7 @@ fn errors_name_the_key_and_the_allowed_values() {
 fn presets_carry_their_schedules() {
     let dir = tempfile::tempdir().unwrap();
     let p = write(dir.path(), "s.toml", SUBJECT);
-    let steps =
-        |c: &ExperimentConfig| (c.train.iterations, c.animate.iterations, c.animate.batch);
+    let steps = |c: &ExperimentConfig| (c.train.iterations, c.animate.iterations, c.animate.batch);
     for preset in ModelPreset::ALL {
         let c = load(&p, &[format!("model.preset={}", preset.name())]).unwrap();
         let s = preset_schedule(preset);
@@ -180,4 +179,17 @@ fn frame_ranges_parse_and_print() {
     assert_eq!(r.to_string(), "10:20:5");
     assert!("5".parse::<FrameRange>().is_err());
     assert!("0:10:0".parse::<FrameRange>().is_err());
+}
+
+/// A flag over a file whose section is a plain value is an error naming the key, not a panic.
+#[test]
+fn settings_over_a_value_where_a_section_belongs_are_an_error() {
+    let dir = tempfile::tempdir().unwrap();
+    let p = write(dir.path(), "s.toml", "name = \"s\"\ndataset = 5\n");
+    let settings = Settings {
+        train_frames: Some("0:4".parse().unwrap()),
+        ..Settings::default()
+    };
+    let err = load_with(&p, &settings, &[]).unwrap_err().to_string();
+    assert!(err.contains("`dataset` is not a section"), "{err}");
 }
