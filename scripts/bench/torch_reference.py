@@ -200,7 +200,7 @@ def inverse_lbs(bones, x, w):
 
 
 def volume_weights(table, dims, lo, size, points):
-    """Trilinear lookup with one gather for all 8 corners (anerf_core::body::VolumeTensor::sample)."""
+    """Trilinear lookup with one gather for all 8 corners (anerf_core::geometry::VolumeTensor::sample)."""
     n = points.shape[0]
     base, frac = [], []
     for a in range(3):

@@ -5,8 +5,8 @@
 
 use std::time::Instant;
 
+use anerf_core::kernels::hash_grid::cpu;
 use anerf_core::model::config::{ModelPreset, PointEncoding};
-use anerf_core::model::hash_grid::kernels;
 
 /// Timed calls per kernel, after one untimed call.
 const REPEATS: usize = 15;
@@ -48,19 +48,17 @@ fn main() {
         spec.features,
         rayon::current_num_threads()
     );
-    report("encode", || {
-        kernels::encode(&points, &table, &spec, &mut out)
-    });
+    report("encode", || cpu::encode(&points, &table, &spec, &mut out));
     report("table gradient", || {
         grad_table.fill(0.0);
-        kernels::table_grad(&points, &grad, &spec, &mut grad_table)
+        cpu::table_grad(&points, &grad, &spec, &mut grad_table)
     });
     report("point gradient", || {
-        kernels::points_grad(&points, &table, &grad, &spec, &mut grad_points)
+        cpu::points_grad(&points, &table, &grad, &spec, &mut grad_points)
     });
     report("both gradients", || {
         grad_table.fill(0.0);
-        kernels::grads(
+        cpu::grads(
             &points,
             &table,
             &grad,

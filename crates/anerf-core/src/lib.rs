@@ -7,19 +7,15 @@
 //! * frames: **world** (calibrated capture frame) → **pose space** (`x_pose = R_hᵀ (x_world − T_h)`) →
 //!   **canonical** (T-pose) through inverse linear blend skinning.
 
-pub mod body;
 pub mod device;
 pub mod error;
-mod fastmath;
-mod flex;
-pub mod fused;
 pub mod geometry;
 pub mod ids;
+pub mod kernels;
 pub mod mesh;
 pub mod model;
 pub mod render;
 pub mod tensor;
-mod trilinear;
 
 pub use device::DeviceChoice;
 pub use error::GeometryError;

@@ -11,10 +11,10 @@
 //! the order of sums (matmul tiling, reductions), which for these sizes moves results by at most 2e-6 on
 //! lavapipe (Mesa 22.3 and 25.0, Vulkan and OpenGL).
 
-use anerf_core::body::BlendWeightVolume;
 use anerf_core::device::cpu_device;
 use anerf_core::device::probe::device_for_test;
 use anerf_core::geometry::skinning::points_tensor;
+use anerf_core::geometry::BlendWeightVolume;
 use anerf_core::geometry::{
     Aabb, BoneMatrices, BoneTransforms, CanonicalPose, GlobalTransform, Pose, Skeleton,
 };

@@ -4,7 +4,7 @@ use std::path::PathBuf;
 
 use thiserror::Error;
 
-use crate::raster::ImageSize;
+use crate::pixels::ImageSize;
 
 /// Invalid inputs to the metrics or to in-memory image operations.
 #[derive(Debug, Error, Clone, PartialEq)]

@@ -10,7 +10,7 @@ use image::codecs::png::PngEncoder;
 use image::{Delay, DynamicImage, Frame, ImageBuffer, Luma, RgbaImage};
 
 use crate::error::{EvalError, MetricError};
-use crate::raster::{ensure_same_size, ImageSize, PixelMask, RgbImageF32};
+use crate::pixels::{ensure_same_size, ImageSize, PixelMask, RgbImageF32};
 use anerf_data::atomic::{temp_dir_beside, write_with};
 
 /// Reads an RGB image; 8-bit values become `v / 255` and 16-bit values `v / 65535` (in f32), any alpha

@@ -7,10 +7,10 @@ pub mod images;
 pub mod mesh_io;
 pub mod mesh_smooth;
 pub mod metrics;
-pub mod raster;
+pub mod pixels;
 pub mod report;
 
 pub use compare::{compare_files, Comparison};
 pub use error::{EvalError, MetricError};
 pub use metrics::ImageMetrics;
-pub use raster::{ImageSize, PixelMask, PixelRect, RgbImageF32};
+pub use pixels::{ImageSize, PixelMask, PixelRect, RgbImageF32};

@@ -9,7 +9,7 @@
 use serde::{Deserialize, Serialize};
 
 use crate::error::MetricError;
-use crate::raster::{ensure_same_size, ImageSize, PixelMask, RgbImageF32};
+use crate::pixels::{ensure_same_size, ImageSize, PixelMask, RgbImageF32};
 
 /// Side of the square SSIM window, in pixels.
 pub const SSIM_WINDOW: usize = 7;

@@ -18,7 +18,7 @@ use crate::images::{
     quantised, read_mask, read_rgb, side_by_side, write_mask_png, write_png, PngDepth,
 };
 use crate::metrics::ImageMetrics;
-use crate::raster::{PixelMask, RgbImageF32};
+use crate::pixels::{PixelMask, RgbImageF32};
 use anerf_data::atomic::write_with;
 
 /// The two evaluations of the paper.

@@ -2,8 +2,8 @@
 //! canonical blend-weight field `w^can`, vertex colours from the radiance field, and reposing by forward LBS
 //! (paper §3.4 "3D shape generation").
 
-use anerf_core::body::BlendWeightVolume;
 use anerf_core::geometry::skinning::{points_tensor, world_to_pose};
+use anerf_core::geometry::BlendWeightVolume;
 use anerf_core::geometry::{forward_lbs_point, Aabb, BoneTransforms, GlobalTransform};
 use anerf_core::mesh::{marching_cubes, ScalarGrid, TriMesh};
 use anerf_core::model::{AnimatableNerf, CanonicalInputs, FrameInputs};

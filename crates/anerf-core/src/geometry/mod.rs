@@ -1,5 +1,6 @@
 //! Geometry of a posed human seen by calibrated cameras: rotations, skeletons and bone transforms,
-//! linear blend skinning (glam for single points, Burn tensors for batches), cameras, rays and boxes.
+//! linear blend skinning (glam for single points, Burn tensors for batches), cameras, rays and boxes, and the
+//! body prior's blend-weight volumes (SMPL-derived weights and distance to the body on a grid).
 
 pub mod aabb;
 pub mod camera;
@@ -7,6 +8,7 @@ pub mod lbs;
 pub mod rotation;
 pub mod skeleton;
 pub mod skinning;
+pub mod volume;
 
 pub use aabb::{Aabb, RayHit};
 pub use camera::{Camera, Distortion, PixelConvention, Ray};
@@ -14,3 +16,4 @@ pub use lbs::{blend_transforms, forward_lbs_point, inverse_lbs_point, validate_w
 pub use rotation::{axis_angle_to_matrix, matrix_to_axis_angle};
 pub use skeleton::{BoneTransforms, CanonicalPose, GlobalTransform, Pose, Skeleton};
 pub use skinning::BoneMatrices;
+pub use volume::{BlendWeightVolume, VolumeTensor};

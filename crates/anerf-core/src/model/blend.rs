@@ -106,8 +106,8 @@ pub fn combine(
     prior: Tensor<2>,
 ) -> Tensor<2> {
     match parameterisation {
-        BlendParameterisation::LogSoftmax if crate::fused::available(&prior.device()) => {
-            crate::fused::prior_softmax(prior, residual)
+        BlendParameterisation::LogSoftmax if crate::kernels::warp::available(&prior.device()) => {
+            crate::kernels::warp::prior_softmax(prior, residual)
         }
         BlendParameterisation::LogSoftmax => prior_softmax_reference(prior, residual),
         BlendParameterisation::ExpNorm => {
@@ -119,9 +119,12 @@ pub fn combine(
 }
 
 /// `softmax(log(w^s + ε) + F)` in tensor operations: the log-softmax parameterisation where the fused
-/// kernel ([`crate::fused::prior_softmax`]) is not available.
+/// kernel ([`crate::kernels::warp::prior_softmax`]) is not available.
 pub fn prior_softmax_reference(prior: Tensor<2>, residual: Tensor<2>) -> Tensor<2> {
-    softmax((prior + crate::fused::PRIOR_EPSILON).log() + residual, 1)
+    softmax(
+        (prior + crate::kernels::warp::PRIOR_EPSILON).log() + residual,
+        1,
+    )
 }
 
 #[cfg(test)]

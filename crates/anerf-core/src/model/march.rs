@@ -1,7 +1,7 @@
 //! Rendering for display and evaluation, without gradients: each ray's surviving samples are shaded front to
 //! back in rounds, and a ray stops once its transmittance falls below a threshold (early ray termination, as
 //! in Instant-NGP and nerfacc), so the samples behind an opaque surface never reach an MLP. Compositing runs
-//! on the host, with [`crate::render::composite`]'s conventions.
+//! on the host, with [`crate::render::composite`](mod@crate::render::composite)'s conventions.
 
 use glam::Vec3;
 

@@ -7,9 +7,9 @@ use burn::prelude::*;
 use glam::Vec3;
 
 use super::*;
-use crate::body::BlendWeightVolume;
 use crate::device::cpu_device;
 use crate::geometry::skinning::{points_tensor, world_to_pose, BoneMatrices};
+use crate::geometry::BlendWeightVolume;
 use crate::geometry::{
     inverse_lbs_point, Aabb, Camera, CanonicalPose, GlobalTransform, Pose, Skeleton,
 };
@@ -551,7 +551,7 @@ fn flex_and_wgpu_render_and_differentiate_the_same() {
     ) else {
         return;
     };
-    assert!(super::hash_grid::extension::has_kernels(&gpu));
+    assert!(crate::kernels::hash_grid::extension::has_kernels(&gpu));
     let grid = |levels, log2_table_size, finest_resolution| super::hash_grid::HashGridConfig {
         levels,
         log2_table_size,

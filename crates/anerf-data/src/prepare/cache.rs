@@ -3,8 +3,8 @@
 
 use std::path::{Path, PathBuf};
 
-use anerf_core::body::BlendWeightVolume;
 use anerf_core::geometry::Aabb;
+use anerf_core::geometry::BlendWeightVolume;
 use glam::Vec3;
 use sha2::{Digest, Sha256};
 

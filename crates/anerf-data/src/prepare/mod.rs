@@ -12,7 +12,7 @@ pub mod volumes;
 
 use std::path::{Path, PathBuf};
 
-use anerf_core::body::BlendWeightVolume;
+use anerf_core::geometry::BlendWeightVolume;
 use anerf_core::geometry::{
     Aabb, BoneTransforms, Camera, CanonicalPose, Distortion, Pose, Skeleton,
 };

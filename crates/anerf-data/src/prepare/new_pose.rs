@@ -3,7 +3,7 @@
 
 use std::path::Path;
 
-use anerf_core::body::BlendWeightVolume;
+use anerf_core::geometry::BlendWeightVolume;
 use anerf_core::geometry::{forward_lbs_point, Aabb, BoneTransforms, CanonicalPose, Pose};
 use glam::Vec3;
 

@@ -1,8 +1,8 @@
 //! Blend-weight volumes (docs/REFERENCE.md §1.3): on a grid of 0.025 m voxels around the body, the skinning
 //! weights of the nearest body point and the distance to it, `K + 1` channels per node.
 
-use anerf_core::body::BlendWeightVolume;
 use anerf_core::geometry::Aabb;
+use anerf_core::geometry::BlendWeightVolume;
 use glam::Vec3;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};

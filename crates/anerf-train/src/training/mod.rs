@@ -1,8 +1,8 @@
-//! The optimisation loops: one driver ([`driver`]) that owns stopping, logging windows, checkpoint
+//! The optimisation loops: one driver (`driver`) that owns stopping, logging windows, checkpoint
 //! cadence, validation and progress, and one step per fit — stage 1 fits the canonical radiance field
-//! and the blend-weight fields to the training video ([`stage1`]); stage 2 fits blend-weight fields for
+//! and the blend-weight fields to the training video (`stage1`); stage 2 fits blend-weight fields for
 //! novel poses against the frozen canonical field, for the run's novel-pose frames or for poses from
-//! files ([`stage2`]).
+//! files (`stage2`).
 
 mod driver;
 pub mod schedule;

@@ -9,8 +9,8 @@
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
-use anerf_core::body::BlendWeightVolume;
 use anerf_core::geometry::skinning::BoneMatrices;
+use anerf_core::geometry::BlendWeightVolume;
 use anerf_core::geometry::{Aabb, BoneTransforms, GlobalTransform};
 use anerf_core::model::animatable::consistency_mask;
 use anerf_core::model::{

@@ -8,8 +8,8 @@ use burn::prelude::*;
 use glam::Vec3;
 use rayon::prelude::*;
 
-use super::super::geometry::Aabb;
-use crate::fused::TrilinearGrid;
+use super::Aabb;
+use crate::kernels::warp::TrilinearGrid;
 
 /// A `(Nx, Ny, Nz, K+1)` grid whose node `(0,0,0)` sits at `bounds.min` and node `(Nx−1, Ny−1, Nz−1)` at
 /// `bounds.max` (`grid_sample` with `align_corners=True`). Channels `0..K` are blend weights, channel `K`
@@ -335,9 +335,9 @@ impl VolumeTensor {
     }
 
     /// Trilinear interpolation of the rows of `table` (`[nodes, C]`) at points `[N, 3]` → `[N, C]`: one fused
-    /// kernel on the flex backend ([`crate::fused::trilinear`]), else [`Self::interpolate_reference`].
+    /// kernel on the flex backend ([`crate::kernels::warp::trilinear`]), else [`Self::interpolate_reference`].
     fn interpolate(&self, table: &Tensor<2>, points: Tensor<2>) -> Tensor<2> {
-        if !crate::fused::available(&points.device()) {
+        if !crate::kernels::warp::available(&points.device()) {
             return self.interpolate_reference(table, points);
         }
         let (bounds, dims) = (self.host.volume.bounds, self.host.volume.dims);
@@ -347,7 +347,7 @@ impl VolumeTensor {
             scale: std::array::from_fn(|a| (dims[a] - 1) as f32 / size[a]),
             dims,
         };
-        crate::fused::trilinear(points, table.clone(), grid)
+        crate::kernels::warp::trilinear(points, table.clone(), grid)
     }
 
     /// [`Self::interpolate`] in tensor operations.
@@ -506,7 +506,7 @@ mod tests {
         };
         let (value, grad) = run(true);
         let (expected_value, expected_grad) = run(false);
-        assert!(crate::fused::available(&device));
+        assert!(crate::kernels::warp::available(&device));
         crate::tensor::assert_close("trilinear value", &value, &expected_value, 1e-5);
         crate::tensor::assert_close("trilinear gradient", &grad, &expected_grad, 1e-4);
         assert!(grad.contains(&0.0) && grad.iter().any(|g| *g != 0.0));

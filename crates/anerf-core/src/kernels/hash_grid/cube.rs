@@ -1,5 +1,5 @@
 //! CubeCL kernels of the hash-grid encoding for Burn's CubeCL backend (the `wgpu` feature): the same three
-//! operations and the same arithmetic as the CPU [`super::kernels`] (hash, unit-cube clamping, corner
+//! operations and the same arithmetic as the CPU [`super::cpu`] (hash, unit-cube clamping, corner
 //! weights), compiled just in time for the device.
 //!
 //! * encode: one unit per (point, level) gathers the eight corners and writes the level's `F` features;
@@ -8,7 +8,7 @@
 //!   atomics);
 //! * point gradient: one unit per point walks the levels and writes its three derivatives (no atomics).
 //!
-//! Shapes as in [`super::kernels`]: points `[N, 3]` (metres), table `[L·T, F]`, encodings `[N, L·F]`; all
+//! Shapes as in [`super::cpu`]: points `[N, 3]` (metres), table `[L·T, F]`, encodings `[N, L·F]`; all
 //! `f32`. Inputs are made contiguous first; outputs are indexed through their strides.
 
 use burn::backend::Cube;
@@ -23,8 +23,8 @@ use cubecl::ir::{ElemType, FloatKind, Type, UIntKind};
 use cubecl::prelude::*;
 use cubecl::{calculate_cube_count_elemwise, CubeDim};
 
+use super::cpu::HASH_PRIMES;
 use super::extension::HashGridBackend;
-use super::kernels::HASH_PRIMES;
 use super::GridSpec;
 
 // The hash multiplies x by the first prime, 1, which `corner_row` leaves out.

@@ -1,4 +1,4 @@
-//! Fused CPU operations of the warp: inverse linear blend skinning, the log-softmax blend weights and the
+//! The warp's fused CPU operations: inverse linear blend skinning, the log-softmax blend weights and the
 //! trilinear lookup of a body-model volume, each one hand-written kernel forward and one backward instead of
 //! a few dozen autodiff tensor operations on `[N, 3]`, `[N, 12]` and `[N, K]` tensors (whose allocations and
 //! passes dominate the small models' step).
@@ -7,14 +7,14 @@
 //! references (`BoneMatrices::inverse_reference`, `blend::prior_softmax_reference`,
 //! `VolumeTensor::interpolate_reference`), which the tests compare the kernels against.
 
+pub mod cpu;
 pub mod extension;
-pub mod kernels;
 
 use burn::backend::{Dispatch, DispatchDevice};
 use burn::prelude::*;
 
+pub use cpu::{TrilinearGrid, PRIOR_EPSILON};
 use extension::FusedBackend;
-pub use kernels::{TrilinearGrid, PRIOR_EPSILON};
 
 /// Whether the fused kernels run on `device`: the flex backend, with or without autodiff.
 pub fn available(device: &Device) -> bool {

@@ -19,14 +19,15 @@ use super::tests::{gradients, points, spec_with, wave};
 use super::*;
 use crate::device::cpu_device;
 use crate::device::probe::device_for_test;
+use crate::model::hash_grid::encode_reference;
 use crate::tensor::{assert_close, from_rows, to_host};
 use crate::DeviceChoice;
 
-/// The wgpu device for the test at `path` (under `model::hash_grid::cube_tests::`), or `None` (printed).
+/// The wgpu device for the test at `path` (under `kernels::hash_grid::cube_tests::`), or `None` (printed).
 fn gpu(test: &str) -> Option<Device> {
     device_for_test(
         DeviceChoice::Wgpu,
-        &format!("model::hash_grid::cube_tests::{test}"),
+        &format!("kernels::hash_grid::cube_tests::{test}"),
     )
 }
 
@@ -135,7 +136,7 @@ fn gpu_table_grad(
 /// The CPU kernel's table gradient.
 fn cpu_table_grad(p: &[f32], grad: &[f32], spec: &GridSpec) -> Vec<f32> {
     let mut out = vec![0.0; spec.table_rows() * spec.features];
-    kernels::table_grad(p, grad, spec, &mut out);
+    cpu::table_grad(p, grad, spec, &mut out);
     out
 }
 

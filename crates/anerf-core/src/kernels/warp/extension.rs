@@ -1,4 +1,4 @@
-//! The fused warp operations as a Burn backend extension: the flex backend runs [`super::kernels`], the
+//! The fused warp operations as a Burn backend extension: the flex backend runs [`super::cpu`], the
 //! autodiff backend wraps it with the hand-written backward passes. Other backends are not listed (calling
 //! them there panics); [`super::available`] keeps them on the tensor reference.
 
@@ -11,10 +11,10 @@ use burn::backend::flex::{Flex, FlexTensor};
 use burn::backend::tensor::FloatTensor;
 use burn::backend::{backend_extension, AutodiffBackend};
 
-use super::kernels::{self, TrilinearGrid};
-use crate::flex::{dims, tensor, values};
+use super::cpu::{self, TrilinearGrid};
+use crate::kernels::flex::{dims, tensor, values};
 
-/// The fused operations (all tensors `f32`, row-major; shapes as in [`super::kernels`]).
+/// The fused operations (all tensors `f32`, row-major; shapes as in [`super::cpu`]).
 #[backend_extension(Flex, Autodiff)]
 pub trait FusedBackend: burn::backend::Backend {
     /// Inverse skinning: points `[N, 3]`, weights `[N, K]`, bones `[K, 12]` → canonical points `[N, 3]`.
@@ -61,7 +61,7 @@ impl FusedBackend for Flex {
     fn inverse_skinning(points: FlexTensor, weights: FlexTensor, bones: FlexTensor) -> FlexTensor {
         let n = check_skinning(&points, &weights, &bones);
         let mut out = vec![0.0; n * 3];
-        kernels::inverse_skinning(
+        cpu::inverse_skinning(
             &values(&points),
             &values(&weights),
             &values(&bones),
@@ -80,7 +80,7 @@ impl FusedBackend for Flex {
         assert_eq!(dims(&grad), [n, 3], "inverse skinning: output gradient");
         let k = dims(&bones)[0];
         let (mut grad_points, mut grad_weights) = (vec![0.0; n * 3], vec![0.0; n * k]);
-        kernels::inverse_skinning_grads(
+        cpu::inverse_skinning_grads(
             &values(&points),
             &values(&weights),
             &values(&bones),
@@ -95,7 +95,7 @@ impl FusedBackend for Flex {
         let [n, k] = dims(&prior);
         assert_eq!(dims(&residual), [n, k], "prior softmax: residual");
         let mut out = vec![0.0; n * k];
-        kernels::prior_softmax(&values(&prior), &values(&residual), k, &mut out);
+        cpu::prior_softmax(&values(&prior), &values(&residual), k, &mut out);
         tensor(out, [n, k])
     }
 
@@ -103,14 +103,14 @@ impl FusedBackend for Flex {
         let [n, k] = dims(&weights);
         assert_eq!(dims(&grad), [n, k], "prior softmax: output gradient");
         let mut out = vec![0.0; n * k];
-        kernels::prior_softmax_logit_grad(&values(&weights), &values(&grad), k, &mut out);
+        cpu::prior_softmax_logit_grad(&values(&weights), &values(&grad), k, &mut out);
         tensor(out, [n, k])
     }
 
     fn trilinear(points: FlexTensor, table: FlexTensor, grid: TrilinearGrid) -> FlexTensor {
         let (n, c) = check_trilinear(&points, &table, &grid);
         let mut out = vec![0.0; n * c];
-        kernels::trilinear(&values(&points), &values(&table), &grid, &mut out);
+        cpu::trilinear(&values(&points), &values(&table), &grid, &mut out);
         tensor(out, [n, c])
     }
 
@@ -123,7 +123,7 @@ impl FusedBackend for Flex {
         let (n, c) = check_trilinear(&points, &table, &grid);
         assert_eq!(dims(&grad), [n, c], "trilinear: output gradient");
         let mut out = vec![0.0; n * 3];
-        kernels::trilinear_points_grad(
+        cpu::trilinear_points_grad(
             &values(&points),
             &values(&table),
             &values(&grad),
@@ -199,7 +199,7 @@ impl<B: FusedBackend> Backward<B, 2> for PriorSoftmaxBackward {
         let logits = B::prior_softmax_logit_grad(weights, grad);
         if let Some(node) = prior_node {
             // ∂ log(w^s + ε) / ∂ w^s = 1 / (w^s + ε).
-            let shifted = B::float_add_scalar(prior, kernels::PRIOR_EPSILON.into());
+            let shifted = B::float_add_scalar(prior, cpu::PRIOR_EPSILON.into());
             grads.register::<B>(node.id, B::float_div(logits.clone(), shifted));
         }
         if let Some(node) = residual_node {

@@ -1,5 +1,5 @@
 //! Trilinear interpolation weights of one point, for the fused warp kernels' volume lookup
-//! ([`crate::fused::kernels`]; the hash-grid kernels compute the same weights for blocks of points, in lane
+//! ([`super::warp::cpu`]; the hash-grid kernels compute the same weights for blocks of points, in lane
 //! arrays). Corner `c` of a cell has bit `a` set when it lies on the high side along axis `a`; `frac` is the
 //! point's position in the cell, `[0, 1]` per axis.
 

@@ -1,5 +1,5 @@
 //! Plain-slice access to flex tensors, for the hand-written CPU kernels behind Burn backend extensions
-//! ([`crate::model::hash_grid`], [`crate::fused`]).
+//! ([`super::hash_grid`], [`super::warp`]).
 
 use std::borrow::Cow;
 

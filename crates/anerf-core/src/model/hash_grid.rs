@@ -3,22 +3,17 @@
 //! fit in its table of `T` rows, else at a spatial hash of the vertex), read by trilinear interpolation and
 //! concatenated over levels.
 //!
-//! Three implementations compute the same function: hand-written CPU kernels ([`kernels`], used through a
-//! Burn backend extension on the flex backend, forward and backward), CubeCL kernels for the GPU backend
-//! (`cube`, with the `wgpu` feature; the same extension) and a plain-tensor reference
-//! ([`encode_reference`]: every corner of every level gathered with one `select`) that serves every other
-//! backend and that the tests compare the kernels against.
-
-#[cfg(feature = "wgpu")]
-mod cube;
-pub mod extension;
-pub mod kernels;
+//! This module holds the learned module and its sizes. Three implementations compute the same function:
+//! the hand-written CPU and CubeCL kernels of [`crate::kernels::hash_grid`] (through a Burn backend
+//! extension on the flex and wgpu backends, forward and backward) and the plain-tensor reference here
+//! ([`encode_reference`]: every corner of every level gathered with one `select`), which serves every other
+//! backend and which the kernels' tests compare against.
 
 use burn::module::{Initializer, Param};
 use burn::prelude::*;
 use serde::{Deserialize, Serialize};
 
-use kernels::HASH_PRIMES;
+use crate::kernels::hash_grid::{extension, GridSpec, HASH_PRIMES};
 
 /// Sizes of a hash grid (a part of [`crate::model::ModelConfig`]).
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
@@ -99,42 +94,6 @@ impl HashGridConfig {
                 .collect(),
             half_extent: self.half_extent,
         }
-    }
-}
-
-/// A hash grid with its resolutions resolved: everything the kernels need besides the tensors.
-#[derive(Debug, Clone, PartialEq)]
-pub struct GridSpec {
-    /// `F`.
-    pub features: usize,
-    /// `T`, a power of two.
-    pub table_size: usize,
-    /// Cells per axis `N_l` of each level (vertices `0..=N_l`).
-    pub resolutions: Vec<u32>,
-    /// Metres; the grid spans `[−h, h]³`.
-    pub half_extent: f32,
-}
-
-impl GridSpec {
-    /// `L`.
-    pub fn levels(&self) -> usize {
-        self.resolutions.len()
-    }
-
-    /// `L · F`.
-    pub fn output_dim(&self) -> usize {
-        self.levels() * self.features
-    }
-
-    /// Rows of the whole table, `L · T`.
-    pub fn table_rows(&self) -> usize {
-        self.levels() * self.table_size
-    }
-
-    /// Whether `level`'s `(N + 1)³` vertices have a row each (no hashing).
-    pub fn is_dense(&self, level: usize) -> bool {
-        let side = self.resolutions[level] as u64 + 1;
-        side * side * side <= self.table_size as u64
     }
 }
 
@@ -236,9 +195,3 @@ pub fn encode_reference(points: Tensor<2>, table: Tensor<2>, spec: &GridSpec) ->
         .swap_dims(0, 1)
         .reshape([n, levels * f])
 }
-
-#[cfg(test)]
-mod tests;
-
-#[cfg(all(test, feature = "wgpu"))]
-mod cube_tests;

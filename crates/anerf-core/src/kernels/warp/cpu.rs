@@ -5,9 +5,9 @@
 use glam::Vec3;
 use rayon::prelude::*;
 
-use crate::fastmath;
 use crate::geometry::skinning::DET_GUARD;
-use crate::trilinear::{cell_position_gradient, corner_weights};
+use crate::kernels::fastmath;
+use crate::kernels::trilinear::{cell_position_gradient, corner_weights};
 
 /// Points per rayon task: one point's work is a few hundred flops, a task needs thousands.
 const BLOCK: usize = 512;
@@ -191,7 +191,7 @@ pub fn prior_softmax_logit_grad(weights: &[f32], grad: &[f32], k: usize, out: &m
         });
 }
 
-/// A regular grid of nodes over a box (a [`crate::body::BlendWeightVolume`]'s layout): node `(i, j, k)` is
+/// A regular grid of nodes over a box (a [`crate::geometry::BlendWeightVolume`]'s layout): node `(i, j, k)` is
 /// row `(i·n_y + j)·n_z + k` of the table, points are in the volume's frame (metres).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct TrilinearGrid {

@@ -1,7 +1,7 @@
-//! The hash-grid encoding as a Burn backend extension: the flex backend runs the CPU [`super::kernels`],
+//! The hash-grid encoding as a Burn backend extension: the flex backend runs the CPU [`super::cpu`],
 //! the CubeCL backend (with the `wgpu` feature) the kernels of `super::cube`; the autodiff backend wraps
 //! either with a hand-written backward pass (table gradient and point gradient). Other backends use
-//! [`super::encode_reference`] (see [`has_kernels`]).
+//! [`crate::model::hash_grid::encode_reference`] (see [`has_kernels`]).
 
 use burn::backend::autodiff::checkpoint::base::Checkpointer;
 use burn::backend::autodiff::checkpoint::strategy::CheckpointStrategy;
@@ -14,10 +14,10 @@ use burn::backend::AutodiffBackend;
 use burn::backend::{backend_extension, Dispatch, DispatchDevice};
 use burn::prelude::*;
 
-use super::{kernels, GridSpec};
-use crate::flex::{dims, tensor as flex_tensor, values};
+use super::{cpu, GridSpec};
+use crate::kernels::flex::{dims, tensor as flex_tensor, values};
 
-/// The encoding's primitive operations (all tensors `f32`, row-major; see [`super::kernels`] for shapes).
+/// The encoding's primitive operations (all tensors `f32`, row-major; see [`super::cpu`] for shapes).
 #[backend_extension(Flex, Cube: cfg(feature = "wgpu"), Autodiff)]
 pub trait HashGridBackend: burn::backend::Backend {
     /// `[N, 3]` points and the `[L·T, F]` table → `[N, L·F]` features.
@@ -90,13 +90,13 @@ impl HashGridBackend for Flex {
             "hash grid table"
         );
         let mut out = vec![0.0; n * spec.output_dim()];
-        kernels::encode(&values(&points), &values(&table), &spec, &mut out);
+        cpu::encode(&values(&points), &values(&table), &spec, &mut out);
         flex_tensor(out, [n, spec.output_dim()])
     }
 
     fn hash_grid_table_grad(points: FlexTensor, grad: FlexTensor, spec: GridSpec) -> FlexTensor {
         let mut out = vec![0.0; spec.table_rows() * spec.features];
-        kernels::table_grad(&values(&points), &values(&grad), &spec, &mut out);
+        cpu::table_grad(&values(&points), &values(&grad), &spec, &mut out);
         flex_tensor(out, [spec.table_rows(), spec.features])
     }
 
@@ -108,7 +108,7 @@ impl HashGridBackend for Flex {
     ) -> FlexTensor {
         let n = rows(&points);
         let mut out = vec![0.0; n * 3];
-        kernels::points_grad(
+        cpu::points_grad(
             &values(&points),
             &values(&table),
             &values(&grad),
@@ -127,7 +127,7 @@ impl HashGridBackend for Flex {
         let n = rows(&points);
         let mut table_grad = vec![0.0; spec.table_rows() * spec.features];
         let mut points_grad = vec![0.0; n * 3];
-        kernels::grads(
+        cpu::grads(
             &values(&points),
             &values(&table),
             &values(&grad),

@@ -24,7 +24,7 @@ const LANES: usize = 16;
 const MIN_CHUNK: usize = 256;
 
 /// The primes of Instant-NGP's spatial hash (the first is 1).
-pub(crate) const HASH_PRIMES: [u32; 3] = [1, 2_654_435_761, 805_459_861];
+pub const HASH_PRIMES: [u32; 3] = [1, 2_654_435_761, 805_459_861];
 
 /// One level's constants, resolved once per kernel call.
 #[derive(Debug, Clone, Copy)]

@@ -5,6 +5,7 @@ use burn::tensor::Distribution;
 
 use super::*;
 use crate::device::cpu_device;
+use crate::model::hash_grid::{encode_reference, HashGridConfig};
 use crate::tensor::{from_rows, to_host};
 
 /// Four levels (2, 4, 8, 16 cells per axis) over `[−1, 1]³` with 256-row tables: the two coarse levels are
@@ -178,7 +179,7 @@ fn kernel_gradients_match_finite_differences() {
     }
     let objective = |p: &[f32], t: &[f32]| -> f64 {
         let mut out = vec![0.0; n * spec.output_dim()];
-        kernels::encode(p, t, &spec, &mut out);
+        cpu::encode(p, t, &spec, &mut out);
         out.iter()
             .zip(&coeff)
             .map(|(a, b)| (*a as f64) * (*b as f64))
@@ -243,11 +244,11 @@ fn fused_gradients_match_the_separate_kernels() {
             .collect();
         let mut table_grad = vec![0.0; table.len()];
         let mut points_grad = vec![0.0; 3 * n];
-        kernels::table_grad(&p, &grad, &spec, &mut table_grad);
-        kernels::points_grad(&p, &table, &grad, &spec, &mut points_grad);
+        cpu::table_grad(&p, &grad, &spec, &mut table_grad);
+        cpu::points_grad(&p, &table, &grad, &spec, &mut points_grad);
         let mut fused_table = vec![0.0; table.len()];
         let mut fused_points = vec![1.0; 3 * n];
-        kernels::grads(
+        cpu::grads(
             &p,
             &table,
             &grad,
