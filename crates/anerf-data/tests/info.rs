@@ -4,7 +4,7 @@ mod common;
 
 use std::path::Path;
 
-use anerf_data::formats::{self, NpyArray, NpyData};
+use anerf_data::formats::{self, ArrayData, NdArray};
 use anerf_data::{inspect, DatasetKind, InspectOptions, LoadOptions};
 use common::{copy_tree, cut_file, fixture};
 
@@ -132,7 +132,7 @@ fn write_points(path: &Path, rows: usize, nan: bool) {
     }
     formats::write_npy(
         path,
-        &NpyArray::new(vec![rows, 3], NpyData::F32(data)).unwrap(),
+        &NdArray::new(vec![rows, 3], ArrayData::F32(data)).unwrap(),
     )
     .unwrap();
 }

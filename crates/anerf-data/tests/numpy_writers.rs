@@ -2,7 +2,7 @@
 
 mod common;
 
-use anerf_data::formats::{write_npy, write_object_npy, NpyArray, NpyData, PyValue};
+use anerf_data::formats::{write_npy, write_object_npy, ArrayData, NdArray, PyValue};
 use serde_json::{json, Value};
 
 /// The checker's JSON form of a value: arrays as `{"__array__": …}`, the rest as plain JSON.
@@ -21,47 +21,55 @@ fn expected(v: &PyValue) -> Value {
     }
 }
 
-fn expected_array(a: &NpyArray) -> Value {
+fn expected_array(a: &NdArray) -> Value {
     let data = match a.data() {
-        NpyData::F32(v) => json!(v),
-        NpyData::F64(v) => json!(v),
-        NpyData::I32(v) => json!(v),
-        NpyData::I64(v) => json!(v),
-        NpyData::U32(v) => json!(v),
-        NpyData::U8(v) => json!(v),
+        ArrayData::F32(v) => json!(v),
+        ArrayData::F64(v) => json!(v),
+        ArrayData::I32(v) => json!(v),
+        ArrayData::I64(v) => json!(v),
+        ArrayData::U32(v) => json!(v),
+        ArrayData::U8(v) => json!(v),
+        ArrayData::Bool(v) => json!(v),
     };
-    json!({"__array__": {"dtype": a.descr(), "shape": a.shape(), "data": data}})
+    json!({"__array__": {"dtype": a.dtype().descr(), "shape": a.shape(), "data": data}})
 }
 
-fn arrays() -> Vec<(&'static str, NpyArray)> {
-    let a = |shape: Vec<usize>, data| NpyArray::new(shape, data).unwrap();
+fn arrays() -> Vec<(&'static str, NdArray)> {
+    let a = |shape: Vec<usize>, data| NdArray::new(shape, data).unwrap();
     vec![
         (
             "f32_2d",
             a(
                 vec![3, 2],
-                NpyData::F32(vec![1.5, -0.0, 1e-38, f32::MAX, -3.25, 7.0]),
+                ArrayData::F32(vec![1.5, -0.0, 1e-38, f32::MAX, -3.25, 7.0]),
             ),
         ),
         (
             "f64_3d",
-            a(vec![2, 1, 2], NpyData::F64(vec![0.1, -2.0, 1e300, 5e-324])),
+            a(
+                vec![2, 1, 2],
+                ArrayData::F64(vec![0.1, -2.0, 1e300, 5e-324]),
+            ),
         ),
         (
             "i64_sentinel",
-            a(vec![4], NpyData::I64(vec![4294967295, 0, -1, i64::MIN])),
+            a(vec![4], ArrayData::I64(vec![4294967295, 0, -1, i64::MIN])),
         ),
-        ("i32_scalar", a(vec![], NpyData::I32(vec![-7]))),
-        ("u32_empty", a(vec![0, 3], NpyData::U32(vec![]))),
+        ("i32_scalar", a(vec![], ArrayData::I32(vec![-7]))),
+        ("u32_empty", a(vec![0, 3], ArrayData::U32(vec![]))),
         (
             "u8_long",
             a(
                 vec![300],
-                NpyData::U8((0..300).map(|i| (i * 7 % 256) as u8).collect()),
+                ArrayData::U8((0..300).map(|i| (i * 7 % 256) as u8).collect()),
             ),
         ),
+        (
+            "bool_mask",
+            a(vec![2, 2], ArrayData::Bool(vec![true, false, false, true])),
+        ),
         // 40 dimensions: a header longer than 128 bytes, padded to the next multiple of 64.
-        ("many_dims", a(vec![1; 40], NpyData::F32(vec![2.0]))),
+        ("many_dims", a(vec![1; 40], ArrayData::F32(vec![2.0]))),
     ]
 }
 
@@ -144,9 +152,9 @@ fn the_checker_catches_a_wrong_value() {
     let dir = tempfile::tempdir().unwrap();
     let folder = dir.path().join("files");
     std::fs::create_dir(&folder).unwrap();
-    let array = NpyArray::new(vec![2], NpyData::F32(vec![1.0, 2.0])).unwrap();
+    let array = NdArray::new(vec![2], ArrayData::F32(vec![1.0, 2.0])).unwrap();
     write_npy(&folder.join("a.npy"), &array).unwrap();
-    let wrong = NpyArray::new(vec![2], NpyData::F32(vec![1.0, 2.5])).unwrap();
+    let wrong = NdArray::new(vec![2], ArrayData::F32(vec![1.0, 2.5])).unwrap();
     let manifest =
         json!({"files": [{"path": "a.npy", "kind": "npy", "expected": expected_array(&wrong)}]});
     let result = std::panic::catch_unwind(|| common::numpy_check(&folder, &manifest));

@@ -15,8 +15,8 @@ use std::path::Path;
 use thiserror::Error;
 
 use crate::error::DataError;
-pub use npy::{ArrayData, DType, NdArray};
-pub use npy_write::{write_npy, NpyArray, NpyData};
+pub use npy::{ArrayData, DType, NdArray, ShapeMismatch};
+pub use npy_write::write_npy;
 pub use pickle::Value;
 pub use pickle_write::{write_object_npy, PyValue};
 
@@ -61,12 +61,8 @@ pub fn read_pickle(path: &Path) -> Result<Value, DataError> {
 /// Errors of the `.npy` and pickle writers, naming the file or the array at fault.
 #[derive(Debug, Error)]
 pub enum FormatWriteError {
-    #[error("array of shape {shape:?} needs {expected} elements, got {got}")]
-    ShapeMismatch {
-        shape: Vec<usize>,
-        expected: usize,
-        got: usize,
-    },
+    #[error(transparent)]
+    Shape(#[from] ShapeMismatch),
     #[error(
         "npy header for shape {shape:?} is {len} bytes; format version 1 allows at most 65535"
     )]

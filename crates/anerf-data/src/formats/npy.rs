@@ -28,6 +28,19 @@ impl DType {
         }
     }
 
+    /// The little-endian numpy type string the writers use (`'<f4'`, `'|u1'`, …).
+    pub fn descr(self) -> &'static str {
+        match self {
+            DType::F32 => "<f4",
+            DType::F64 => "<f8",
+            DType::I32 => "<i4",
+            DType::I64 => "<i8",
+            DType::U32 => "<u4",
+            DType::U8 => "|u1",
+            DType::Bool => "|b1",
+        }
+    }
+
     fn from_kind(kind: char, size: usize) -> Option<Self> {
         Some(match (kind, size) {
             ('f', 4) => DType::F32,
@@ -126,7 +139,16 @@ pub enum ArrayData {
     Bool(Vec<bool>),
 }
 
-/// An n-dimensional numeric array, always in C (row-major) order.
+/// Elements that do not fill a shape (`∏ shape` elements, 1 for the 0-d shape `[]`).
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+#[error("array of shape {shape:?} needs {} elements, got {got}", element_count(shape).map_or("more than usize::MAX".to_string(), |n| n.to_string()))]
+pub struct ShapeMismatch {
+    pub shape: Vec<usize>,
+    pub got: usize,
+}
+
+/// An n-dimensional numeric array, always in C (row-major) order; what the readers return and the writers
+/// take.
 #[derive(Debug, Clone, PartialEq)]
 pub struct NdArray {
     shape: Vec<usize>,
@@ -135,15 +157,14 @@ pub struct NdArray {
 
 impl NdArray {
     /// Wraps data of the given shape; fails when the element count does not match.
-    pub fn new(shape: Vec<usize>, data: ArrayData) -> Result<Self, String> {
-        let count = element_count(&shape).ok_or_else(|| format!("shape {shape:?} overflows"))?;
+    pub fn new(shape: Vec<usize>, data: ArrayData) -> Result<Self, ShapeMismatch> {
         let arr = Self { shape, data };
-        if arr.len() != count {
-            return Err(format!(
-                "{} elements do not fill shape {:?}",
-                arr.len(),
-                arr.shape
-            ));
+        let got = arr.len();
+        if element_count(&arr.shape) != Some(got) {
+            return Err(ShapeMismatch {
+                shape: arr.shape,
+                got,
+            });
         }
         Ok(arr)
     }
@@ -220,6 +241,22 @@ impl NdArray {
             ArrayData::U8(v) => v.iter().map(|&x| x as i64).collect(),
             ArrayData::Bool(v) => v.iter().map(|&x| x as i64).collect(),
         })
+    }
+
+    /// The elements as little-endian bytes in C order, the layout of `.npy` files and pickled arrays.
+    pub fn le_bytes(&self) -> Vec<u8> {
+        fn flat<const N: usize, T: Copy>(v: &[T], f: impl Fn(T) -> [u8; N]) -> Vec<u8> {
+            v.iter().flat_map(|&x| f(x)).collect()
+        }
+        match &self.data {
+            ArrayData::F32(v) => flat(v, f32::to_le_bytes),
+            ArrayData::F64(v) => flat(v, f64::to_le_bytes),
+            ArrayData::I32(v) => flat(v, i32::to_le_bytes),
+            ArrayData::I64(v) => flat(v, i64::to_le_bytes),
+            ArrayData::U32(v) => flat(v, u32::to_le_bytes),
+            ArrayData::U8(v) => v.clone(),
+            ArrayData::Bool(v) => v.iter().map(|&b| b as u8).collect(),
+        }
     }
 
     /// Decodes `count = Π shape` elements from raw bytes in NumPy's layout (C or Fortran order).

@@ -9,7 +9,8 @@
 
 use std::path::Path;
 
-use super::npy_write::{npy_header, NpyArray};
+use super::npy::NdArray;
+use super::npy_write::npy_header;
 use super::FormatWriteError;
 use crate::atomic::write_bytes;
 
@@ -24,7 +25,7 @@ pub enum PyValue {
     List(Vec<PyValue>),
     /// A dict with string keys, in insertion order (as Python keeps it).
     Dict(Vec<(String, PyValue)>),
-    Array(NpyArray),
+    Array(NdArray),
 }
 
 impl PyValue {
@@ -176,14 +177,14 @@ impl Pickler {
     }
 
     /// An ndarray: `_reconstruct(...)` then `BUILD` with `(1, shape, dtype, is_fortran, raw bytes)`.
-    fn array(&mut self, a: &NpyArray) -> Result<(), FormatWriteError> {
+    fn array(&mut self, a: &NdArray) -> Result<(), FormatWriteError> {
         self.ndarray_prefix();
         self.0.push(op::MARK);
         self.int(1);
         self.0.push(op::MARK);
         a.shape().iter().for_each(|&d| self.int(d as i64));
         self.0.push(op::TUPLE);
-        let (byte_order, code) = a.descr().split_at(1);
+        let (byte_order, code) = a.dtype().descr().split_at(1);
         self.dtype(code, byte_order, 0);
         self.0.push(op::NEWFALSE);
         let bytes = a.le_bytes();

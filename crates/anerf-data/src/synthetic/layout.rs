@@ -21,7 +21,7 @@ use super::motion::{angles_to_axis_angle, clip_angles, global_rotation, heading,
 use super::raster::{render, RenderedView, Scene};
 use super::rng::SplitMix64;
 use super::{Splits, SynthError, SyntheticSpec, SyntheticSummary, Timings};
-use crate::formats::{write_npy, write_object_npy, NpyArray, NpyData, PyValue};
+use crate::formats::{write_npy, write_object_npy, ArrayData, NdArray, PyValue};
 use crate::subject::{BodyModel, DatasetKind, FrameRecord, Subject};
 
 /// Writes the subject of `spec` into the new folder `out_dir`. Everything goes into a temporary sibling
@@ -319,10 +319,10 @@ fn write_encoded(
 fn f32_array(
     shape: Vec<usize>,
     values: impl IntoIterator<Item = f32>,
-) -> Result<NpyArray, SynthError> {
-    Ok(NpyArray::new(
+) -> Result<NdArray, SynthError> {
+    Ok(NdArray::new(
         shape,
-        NpyData::F32(values.into_iter().collect()),
+        ArrayData::F32(values.into_iter().collect()),
     )?)
 }
 
@@ -330,8 +330,8 @@ fn f64_value(
     shape: Vec<usize>,
     values: impl IntoIterator<Item = f32>,
 ) -> Result<PyValue, SynthError> {
-    let data = NpyData::F64(values.into_iter().map(f64::from).collect());
-    Ok(PyValue::Array(NpyArray::new(shape, data)?))
+    let data = ArrayData::F64(values.into_iter().map(f64::from).collect());
+    Ok(PyValue::Array(NdArray::new(shape, data)?))
 }
 
 fn vec3s(v: &[Vec3]) -> impl Iterator<Item = f32> + '_ {
@@ -367,14 +367,14 @@ fn write_arrays(
                 (
                     "T",
                     cams(&|c| {
-                        let mm = NpyData::F64(
+                        let mm = ArrayData::F64(
                             c.translation
                                 .to_array()
                                 .iter()
                                 .map(|&t| f64::from(t) * 1000.0)
                                 .collect(),
                         );
-                        Ok(PyValue::Array(NpyArray::new(vec![3, 1], mm)?))
+                        Ok(PyValue::Array(NdArray::new(vec![3, 1], mm)?))
                     })?,
                 ),
             ]),
@@ -439,7 +439,7 @@ fn write_arrays(
         .collect();
     write_npy(
         &lbs.join("parents.npy"),
-        &NpyArray::new(vec![joints.len()], NpyData::I64(parents))?,
+        &NdArray::new(vec![joints.len()], ArrayData::I64(parents))?,
     )?;
     let verts = &body.mesh.vertices;
     write_npy(
@@ -462,7 +462,7 @@ fn write_arrays(
         .collect();
     write_npy(
         &lbs.join("faces.npy"),
-        &NpyArray::new(vec![body.mesh.faces.len(), 3], NpyData::I64(faces))?,
+        &NdArray::new(vec![body.mesh.faces.len(), 3], ArrayData::I64(faces))?,
     )?;
     Ok(())
 }

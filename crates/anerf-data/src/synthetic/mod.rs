@@ -356,6 +356,8 @@ pub enum SynthError {
     },
     #[error(transparent)]
     Format(#[from] FormatWriteError),
+    #[error("building an array: {0}")]
+    Shape(#[from] crate::formats::ShapeMismatch),
     #[error("posing the body: {0}")]
     Geometry(#[from] GeometryError),
 }
