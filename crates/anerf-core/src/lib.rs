@@ -20,13 +20,3 @@ pub mod tensor;
 pub use device::DeviceChoice;
 pub use error::GeometryError;
 pub use ids::{FrameId, ViewId};
-
-/// Folder holding the fixtures written by `scripts/fixtures/generate.py` (`target/fixtures` of the workspace).
-///
-/// Tests that read fixtures fail with a message naming the script when the folder is missing.
-pub fn fixtures_dir() -> std::path::PathBuf {
-    if let Some(dir) = std::env::var_os("ANERF_FIXTURES") {
-        return dir.into();
-    }
-    std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../target/fixtures")
-}

@@ -7,22 +7,15 @@ use glam::{Mat3, Mat4, Vec3};
 use serde_json::Value;
 
 fn load(name: &str) -> Value {
-    let path = anerf_core::fixtures_dir().join("geometry").join(name);
-    let text = std::fs::read_to_string(&path).unwrap_or_else(|e| {
-        panic!(
-            "cannot read fixture {}: {e}; run `python3 scripts/fixtures/generate.py` first",
-            path.display()
-        )
-    });
-    serde_json::from_str(&text).unwrap()
+    anerf_testing::json(&format!("geometry/{name}"))
 }
 
+/// The fixture's numbers as the `f32` values glam takes.
 fn floats(v: &Value) -> Vec<f32> {
-    match v {
-        Value::Array(items) => items.iter().flat_map(floats).collect(),
-        Value::Number(n) => vec![n.as_f64().unwrap() as f32],
-        other => panic!("not a number array: {other}"),
-    }
+    anerf_testing::floats(v)
+        .into_iter()
+        .map(|x| x as f32)
+        .collect()
 }
 
 #[test]

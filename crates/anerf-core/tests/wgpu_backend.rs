@@ -27,11 +27,16 @@ use burn::tensor::Distribution;
 use glam::Vec3;
 
 /// Relative tolerance of the comparisons (see the module documentation).
-const TOLERANCE: f32 = 1e-4;
+const TOLERANCE: f64 = 1e-4;
 
 /// Asserts `got` (wgpu) `≈ expected` (flex) within [`TOLERANCE`].
 fn assert_close(what: &str, got: &[f32], expected: &[f32]) {
-    anerf_core::tensor::assert_close(what, got, expected, TOLERANCE);
+    anerf_testing::assert_close(
+        what,
+        got,
+        expected,
+        anerf_testing::Tolerance::Relative(TOLERANCE),
+    );
 }
 
 #[test]

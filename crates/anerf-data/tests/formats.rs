@@ -1,11 +1,10 @@
 //! `.npy`, `.npz` and pickle readers against files written by real numpy and pickle
 //! (`scripts/fixtures/datasets.py`).
 
-mod common;
-
 use anerf_data::formats::{self, pickle::PickleError, Value};
 use anerf_data::DataError;
-use common::{fixture, floats, json};
+use anerf_testing::Tolerance;
+use anerf_testing::{fixture, floats, json};
 
 #[test]
 fn every_dtype_order_and_header_version_reads_like_numpy() {
@@ -23,13 +22,7 @@ fn every_dtype_order_and_header_version_reads_like_numpy() {
 
 /// Equal up to the last bits lost by JSON's decimal round trip.
 fn assert_close(got: &[f64], want: &[f64], what: &str) {
-    assert_eq!(got.len(), want.len(), "{what}");
-    for (g, w) in got.iter().zip(want) {
-        assert!(
-            (g - w).abs() <= 1e-12 * w.abs().max(1.0),
-            "{what}: {g} vs {w}"
-        );
-    }
+    anerf_testing::assert_close(what, got, want, Tolerance::Relative(1e-12));
 }
 
 fn strings(v: &Value, key: &str) -> Vec<String> {

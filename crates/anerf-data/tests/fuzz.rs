@@ -4,8 +4,6 @@
 //! images are in `images.rs`). Seeded and bounded (a second or two in the test profile), so CI runs them
 //! with `cargo test`, and a failure reproduces with the failing input printed.
 
-mod common;
-
 use std::alloc::{GlobalAlloc, Layout, System};
 use std::cell::Cell;
 use std::path::Path;
@@ -69,7 +67,7 @@ static ALLOC: Counting = Counting;
 fn corpus(dirs: &[&str], keep: impl Fn(&Path) -> bool) -> Vec<(String, Vec<u8>)> {
     let mut files = Vec::new();
     for dir in dirs {
-        for entry in std::fs::read_dir(common::fixture(dir)).unwrap() {
+        for entry in std::fs::read_dir(anerf_testing::fixture(dir)).unwrap() {
             let path = entry.unwrap().path();
             if path.is_file() && keep(&path) {
                 files.push((path.display().to_string(), std::fs::read(&path).unwrap()));

@@ -7,7 +7,8 @@ use std::path::Path;
 
 use anerf_data::formats::images;
 use anerf_data::DataError;
-use common::{cut_file, fixture};
+use anerf_testing::fixture;
+use common::cut_file;
 
 type Reader = fn(&Path) -> Result<(), DataError>;
 

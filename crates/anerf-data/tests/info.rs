@@ -6,7 +6,8 @@ use std::path::Path;
 
 use anerf_data::formats::{self, ArrayData, NdArray};
 use anerf_data::{inspect, DatasetKind, InspectOptions, LoadOptions};
-use common::{copy_tree, cut_file, fixture};
+use anerf_testing::fixture;
+use common::{copy_tree, cut_file};
 
 #[test]
 fn summaries_of_the_fake_datasets() {

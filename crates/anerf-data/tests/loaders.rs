@@ -7,7 +7,8 @@ use std::path::{Path, PathBuf};
 
 use anerf_core::geometry::{forward_lbs_point, CanonicalPose};
 use anerf_data::{load_h36m, load_zju_mocap, DataError, LoadOptions};
-use common::{copy_tree, fixture, floats, json};
+use anerf_testing::{fixture, floats, json};
+use common::copy_tree;
 use glam::Vec3;
 
 fn body_npz() -> LoadOptions {

@@ -11,7 +11,7 @@ use anerf_data::prepare::resize::{resize_area, resize_nearest};
 use anerf_data::prepare::undistort::UndistortMap;
 use anerf_data::prepare::{compute_volume, FrameSelection, NearestMethod, VolumeGrid};
 use anerf_data::{load_zju_mocap, prepare, LoadOptions, PrepareOptions, SkinningWeights};
-use common::{fixture, floats, json};
+use anerf_testing::{fixture, floats, json};
 use glam::{Mat3, Vec3};
 use image::{GrayImage, Rgb32FImage};
 use rand::{Rng, SeedableRng};

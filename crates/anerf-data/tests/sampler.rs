@@ -1,8 +1,6 @@
 //! Ray sampling against the reference's masks and boxes (computed by numpy/OpenCV in
 //! `scripts/fixtures/datasets.py`) and its sampling rules.
 
-mod common;
-
 use anerf_core::{FrameId, ViewId};
 use anerf_data::formats::{self, NdArray};
 use anerf_data::prepare::FrameSelection;
@@ -11,7 +9,7 @@ use anerf_data::{
     image_rays, load_zju_mocap, prepare, LoadOptions, PrepareOptions, PreparedSubject, RaySampler,
     SamplerOptions,
 };
-use common::fixture;
+use anerf_testing::fixture;
 use image::GrayImage;
 
 fn npy(rel: &str) -> NdArray {

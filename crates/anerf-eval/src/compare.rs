@@ -5,7 +5,7 @@ use std::path::{Path, PathBuf};
 use crate::error::{EvalError, MetricError};
 use crate::images::{read_mask, read_rgb};
 use crate::metrics::ImageMetrics;
-use crate::pixels::ImageSize;
+use crate::pixels::{ImageSize, RgbImageExt};
 
 /// The result of comparing a prediction with a ground truth.
 #[derive(Debug, Clone, PartialEq)]

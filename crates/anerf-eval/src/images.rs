@@ -7,38 +7,21 @@ use std::process::Command;
 use anerf_data::DataError;
 use image::codecs::gif::{GifEncoder, Repeat};
 use image::codecs::png::PngEncoder;
-use image::{Delay, DynamicImage, Frame, ImageBuffer, Luma, RgbaImage};
+use image::{Delay, DynamicImage, Frame, ImageBuffer, Luma, Rgb32FImage, RgbaImage};
 
 use crate::error::{EvalError, MetricError};
-use crate::pixels::{ensure_same_size, ImageSize, PixelMask, RgbImageF32};
+use crate::pixels::{ensure_same_size, ImageSize, PixelMask, RgbImageExt};
 use anerf_data::atomic::{temp_dir_beside, write_with};
 
 /// Reads an RGB image; 8-bit values become `v / 255` and 16-bit values `v / 65535` (in f32), any alpha
 /// channel is ignored.
-pub fn read_rgb(path: &Path) -> Result<RgbImageF32, EvalError> {
-    let image = decode(path, "an RGB image")?;
-    let size = ImageSize::new(image.width(), image.height());
-    let data: Vec<f32> = match &image {
-        DynamicImage::ImageRgb32F(_) | DynamicImage::ImageRgba32F(_) => {
-            image.to_rgb32f().into_raw()
-        }
-        _ if is_16_bit(&image) => image
-            .to_rgb16()
-            .into_raw()
-            .into_iter()
-            .map(|v| f32::from(v) / 65535.0)
-            .collect(),
-        _ => image
-            .to_rgb8()
-            .into_raw()
-            .into_iter()
-            .map(|v| f32::from(v) / 255.0)
-            .collect(),
-    };
-    RgbImageF32::new(size, data).map_err(|source| EvalError::Metric {
+pub fn read_rgb(path: &Path) -> Result<Rgb32FImage, EvalError> {
+    let image = decode(path, "an RGB image")?.into_rgb32f();
+    image.check_finite().map_err(|source| EvalError::Metric {
         context: path.display().to_string(),
         source,
-    })
+    })?;
+    Ok(image)
 }
 
 /// Reads a mask image: a pixel is inside when any of its colour channels is non-zero (the datasets' masks
@@ -70,11 +53,6 @@ fn decode(path: &Path, expected: &'static str) -> Result<DynamicImage, EvalError
     })
 }
 
-fn is_16_bit(image: &DynamicImage) -> bool {
-    let color = image.color();
-    color.bytes_per_pixel() / color.channel_count() == 2
-}
-
 /// Bits per channel of a written PNG.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum PngDepth {
@@ -99,19 +77,18 @@ fn quantise(v: f32, depth: PngDepth) -> u16 {
 }
 
 /// `image` exactly as [`read_rgb`] returns it after [`write_png`] at `depth`.
-pub fn quantised(image: &RgbImageF32, depth: PngDepth) -> RgbImageF32 {
-    let data = image
-        .data()
-        .iter()
-        .map(|&v| f32::from(quantise(v, depth)) / depth.max())
-        .collect();
-    RgbImageF32::new(image.size(), data).expect("quantised values are finite and keep the size")
+pub fn quantised(image: &Rgb32FImage, depth: PngDepth) -> Rgb32FImage {
+    let mut out = image.clone();
+    for v in out.iter_mut() {
+        *v = f32::from(quantise(*v, depth)) / depth.max();
+    }
+    out
 }
 
 /// Writes `image` as an RGB PNG atomically; values are clamped to [0, 1].
-pub fn write_png(path: &Path, image: &RgbImageF32, depth: PngDepth) -> Result<(), EvalError> {
+pub fn write_png(path: &Path, image: &Rgb32FImage, depth: PngDepth) -> Result<(), EvalError> {
     let (w, h) = (image.width(), image.height());
-    let values = image.data().iter().map(|&v| quantise(v, depth));
+    let values = image.iter().map(|&v| quantise(v, depth));
     let dynamic = match depth {
         PngDepth::Eight => {
             DynamicImage::ImageRgb8(raw_buffer(w, h, values.map(|v| v as u8).collect()))
@@ -156,47 +133,47 @@ fn write_dynamic_png(path: &Path, image: &DynamicImage) -> Result<(), EvalError>
 /// three channels divided by `full_scale` (clamped to 1) is `t`, and the colour is
 /// (3t, 3t − 1, 3t − 2) clamped to [0, 1].
 pub fn error_heat_map(
-    pred: &RgbImageF32,
-    gt: &RgbImageF32,
+    pred: &Rgb32FImage,
+    gt: &Rgb32FImage,
     full_scale: f32,
-) -> Result<RgbImageF32, MetricError> {
+) -> Result<Rgb32FImage, MetricError> {
     ensure_same_size(pred.size(), gt.size())?;
     assert!(
         full_scale > 0.0,
         "heat-map full scale must be positive, got {full_scale}"
     );
     let data = pred
-        .data()
+        .as_raw()
         .chunks_exact(3)
-        .zip(gt.data().chunks_exact(3))
+        .zip(gt.as_raw().chunks_exact(3))
         .flat_map(|(p, g)| {
             let error = p.iter().zip(g).map(|(a, b)| (a - b).abs()).sum::<f32>() / 3.0;
             let t = (error / full_scale).min(1.0);
             [0.0, 1.0, 2.0].map(|k| (3.0 * t - k).clamp(0.0, 1.0))
         })
         .collect();
-    RgbImageF32::new(pred.size(), data)
+    Rgb32FImage::from_values(pred.size(), data)
 }
 
 /// Mean absolute error that saturates the heat map of [`side_by_side`].
 pub const HEAT_MAP_FULL_SCALE: f32 = 0.5;
 
 /// The evaluation composite: prediction | ground truth | error heat map (see [`error_heat_map`]).
-pub fn side_by_side(pred: &RgbImageF32, gt: &RgbImageF32) -> Result<RgbImageF32, MetricError> {
+pub fn side_by_side(pred: &Rgb32FImage, gt: &Rgb32FImage) -> Result<Rgb32FImage, MetricError> {
     let heat = error_heat_map(pred, gt, HEAT_MAP_FULL_SCALE)?;
     let size = ImageSize::new(pred.width() * 3, pred.height());
     let row_len = pred.width() as usize * 3;
     let mut data = Vec::with_capacity(size.pixels() * 3);
     for y in 0..pred.height() as usize {
         for part in [pred, gt, &heat] {
-            data.extend_from_slice(&part.data()[y * row_len..(y + 1) * row_len]);
+            data.extend_from_slice(&part.as_raw()[y * row_len..(y + 1) * row_len]);
         }
     }
-    RgbImageF32::new(size, data)
+    Rgb32FImage::from_values(size, data)
 }
 
 /// Frames of an animation: all the same size, at least one, shown at `fps` frames per second.
-fn check_frames(frames: &[RgbImageF32], fps: u32) -> Result<ImageSize, EvalError> {
+fn check_frames(frames: &[Rgb32FImage], fps: u32) -> Result<ImageSize, EvalError> {
     let first = frames.first().ok_or(EvalError::InvalidInput {
         what: "frame sequence",
         detail: "it is empty; expected at least one frame".into(),
@@ -224,9 +201,9 @@ fn check_frames(frames: &[RgbImageF32], fps: u32) -> Result<ImageSize, EvalError
     Ok(first.size())
 }
 
-fn to_rgba8(image: &RgbImageF32) -> RgbaImage {
+fn to_rgba8(image: &Rgb32FImage) -> RgbaImage {
     let pixels = image
-        .data()
+        .as_raw()
         .chunks_exact(3)
         .flat_map(|rgb| {
             [rgb[0], rgb[1], rgb[2]]
@@ -240,7 +217,7 @@ fn to_rgba8(image: &RgbImageF32) -> RgbaImage {
 
 /// Writes `frames` as a looping animated GIF at `fps` frames per second (GIF delays are in 1/100 s, so the
 /// rate is rounded to the nearest whole delay), atomically.
-pub fn write_gif(path: &Path, frames: &[RgbImageF32], fps: u32) -> Result<(), EvalError> {
+pub fn write_gif(path: &Path, frames: &[Rgb32FImage], fps: u32) -> Result<(), EvalError> {
     check_frames(frames, fps)?;
     let encode_error = |source| EvalError::Encode {
         path: path.to_path_buf(),
@@ -269,7 +246,7 @@ pub enum VideoOutcome {
 }
 
 /// Writes `frames` as an H.264 MP4 at `fps` when ffmpeg is on PATH; otherwise prints a note and skips.
-pub fn write_mp4(path: &Path, frames: &[RgbImageF32], fps: u32) -> Result<VideoOutcome, EvalError> {
+pub fn write_mp4(path: &Path, frames: &[Rgb32FImage], fps: u32) -> Result<VideoOutcome, EvalError> {
     match find_program("ffmpeg") {
         Some(ffmpeg) => write_mp4_with(&ffmpeg, path, frames, fps),
         None => {
@@ -308,7 +285,7 @@ fn is_executable(path: &Path) -> bool {
 pub fn write_mp4_with(
     ffmpeg: &Path,
     path: &Path,
-    frames: &[RgbImageF32],
+    frames: &[Rgb32FImage],
     fps: u32,
 ) -> Result<VideoOutcome, EvalError> {
     check_frames(frames, fps)?;
@@ -367,15 +344,15 @@ mod tests {
 
     use super::*;
 
-    fn pattern(size: ImageSize, seed: u32) -> RgbImageF32 {
+    fn pattern(size: ImageSize, seed: u32) -> Rgb32FImage {
         let data = (0..size.pixels() as u32 * 3)
             .map(|i| ((i * 7919 + seed * 104729) % 1000) as f32 / 999.0)
             .collect();
-        RgbImageF32::new(size, data).unwrap()
+        Rgb32FImage::from_values(size, data).unwrap()
     }
 
-    fn solid(size: ImageSize, rgb: [f32; 3]) -> RgbImageF32 {
-        RgbImageF32::new(size, rgb.repeat(size.pixels())).unwrap()
+    fn solid(size: ImageSize, rgb: [f32; 3]) -> Rgb32FImage {
+        Rgb32FImage::from_values(size, rgb.repeat(size.pixels())).unwrap()
     }
 
     #[test]

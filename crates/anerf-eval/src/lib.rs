@@ -13,4 +13,4 @@ pub mod report;
 pub use compare::{compare_files, Comparison};
 pub use error::{EvalError, MetricError};
 pub use metrics::ImageMetrics;
-pub use pixels::{ImageSize, PixelMask, PixelRect, RgbImageF32};
+pub use pixels::{ImageSize, PixelMask, PixelRect, RgbImageExt};

@@ -9,7 +9,9 @@
 use serde::{Deserialize, Serialize};
 
 use crate::error::MetricError;
-use crate::pixels::{ensure_same_size, ImageSize, PixelMask, RgbImageF32};
+use image::Rgb32FImage;
+
+use crate::pixels::{ensure_same_size, ImageSize, PixelMask, RgbImageExt};
 
 /// Side of the square SSIM window, in pixels.
 pub const SSIM_WINDOW: usize = 7;
@@ -32,10 +34,12 @@ impl ImageMetrics {
     /// Without a mask: PSNR and SSIM of the whole images. With a mask, the reference protocol: PSNR over the
     /// mask's pixels, SSIM over the mask's bounding crop with pixels outside the mask set to 0 in both.
     pub fn compute(
-        pred: &RgbImageF32,
-        gt: &RgbImageF32,
+        pred: &Rgb32FImage,
+        gt: &Rgb32FImage,
         mask: Option<&PixelMask>,
     ) -> Result<Self, MetricError> {
+        pred.check_finite()?;
+        gt.check_finite()?;
         match mask {
             None => Ok(Self {
                 psnr: psnr(pred, gt, None)?,
@@ -52,8 +56,8 @@ impl ImageMetrics {
 /// PSNR in dB, −10·log10(MSE) over the pixels of `mask` (all pixels without one) × 3 channels, for
 /// values in [0, 1]; +∞ when those pixels are identical.
 pub fn psnr(
-    pred: &RgbImageF32,
-    gt: &RgbImageF32,
+    pred: &Rgb32FImage,
+    gt: &Rgb32FImage,
     mask: Option<&PixelMask>,
 ) -> Result<f64, MetricError> {
     ensure_same_size(pred.size(), gt.size())?;
@@ -63,9 +67,9 @@ pub fn psnr(
     let selected = |i: usize| mask.is_none_or(|m| m.bits()[i]);
     let (mut sum, mut count) = (0.0f64, 0usize);
     for (i, (p, g)) in pred
-        .data()
+        .as_raw()
         .chunks_exact(3)
-        .zip(gt.data().chunks_exact(3))
+        .zip(gt.as_raw().chunks_exact(3))
         .enumerate()
     {
         if selected(i) {
@@ -84,7 +88,7 @@ pub fn psnr(
 }
 
 /// SSIM of two whole images (see the module documentation for the exact definition).
-pub fn ssim(a: &RgbImageF32, b: &RgbImageF32) -> Result<f64, MetricError> {
+pub fn ssim(a: &Rgb32FImage, b: &Rgb32FImage) -> Result<f64, MetricError> {
     ensure_same_size(a.size(), b.size())?;
     let size = a.size();
     if (size.width as usize) < SSIM_WINDOW || (size.height as usize) < SSIM_WINDOW {
@@ -92,8 +96,8 @@ pub fn ssim(a: &RgbImageF32, b: &RgbImageF32) -> Result<f64, MetricError> {
     }
     let per_channel: f64 = (0..3)
         .map(|c| {
-            let channel = |img: &RgbImageF32| -> Vec<f64> {
-                img.data()
+            let channel = |img: &Rgb32FImage| -> Vec<f64> {
+                img.as_raw()
                     .iter()
                     .skip(c)
                     .step_by(3)
@@ -109,15 +113,15 @@ pub fn ssim(a: &RgbImageF32, b: &RgbImageF32) -> Result<f64, MetricError> {
 /// The reference protocol's SSIM: both images cropped to the bounding rectangle of `mask`, with pixels
 /// outside the mask set to 0, then [`ssim`].
 pub fn masked_ssim(
-    pred: &RgbImageF32,
-    gt: &RgbImageF32,
+    pred: &Rgb32FImage,
+    gt: &Rgb32FImage,
     mask: &PixelMask,
 ) -> Result<f64, MetricError> {
     ensure_same_size(pred.size(), gt.size())?;
     ensure_same_size(pred.size(), mask.size())?;
     let rect = mask.bounding_rect().ok_or(MetricError::EmptyMask)?;
-    let pred = pred.zeroed_outside(mask)?.crop(rect);
-    let gt = gt.zeroed_outside(mask)?.crop(rect);
+    let pred = pred.zeroed_outside(mask)?.crop_rect(rect);
+    let gt = gt.zeroed_outside(mask)?.crop_rect(rect);
     ssim(&pred, &gt)
 }
 
@@ -172,12 +176,12 @@ fn window_means(values: &[f64], w: usize, h: usize) -> Vec<f64> {
 mod tests {
     use super::*;
 
-    fn image(size: ImageSize, f: impl Fn(u32, u32, usize) -> f32) -> RgbImageF32 {
+    fn image(size: ImageSize, f: impl Fn(u32, u32, usize) -> f32) -> Rgb32FImage {
         let data = (0..size.height)
             .flat_map(|y| (0..size.width).flat_map(move |x| (0..3).map(move |c| (x, y, c))))
             .map(|(x, y, c)| f(x, y, c))
             .collect();
-        RgbImageF32::new(size, data).unwrap()
+        Rgb32FImage::from_values(size, data).unwrap()
     }
 
     #[test]
@@ -226,12 +230,12 @@ mod tests {
 
     #[test]
     fn invalid_inputs_are_reported() {
-        let small = RgbImageF32::black(ImageSize::new(6, 9));
+        let small = Rgb32FImage::black(ImageSize::new(6, 9));
         assert_eq!(
             ssim(&small, &small),
             Err(MetricError::TooSmallForSsim { size: small.size() })
         );
-        let other = RgbImageF32::black(ImageSize::new(9, 6));
+        let other = Rgb32FImage::black(ImageSize::new(9, 6));
         assert!(matches!(
             psnr(&small, &other, None),
             Err(MetricError::SizeMismatch { .. })
@@ -246,7 +250,7 @@ mod tests {
             Err(MetricError::EmptyMask)
         );
         // A mask whose bounding crop is narrower than the window cannot be scored.
-        let big = RgbImageF32::black(ImageSize::new(20, 20));
+        let big = Rgb32FImage::black(ImageSize::new(20, 20));
         let thin = PixelMask::from_fn(big.size(), |x, _| (4..10).contains(&x));
         assert!(matches!(
             masked_ssim(&big, &big, &thin),

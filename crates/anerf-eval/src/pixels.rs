@@ -1,7 +1,9 @@
-//! In-memory images for evaluation: RGB images of f32 values in [0, 1] and boolean pixel masks.
+//! In-memory images for evaluation: sizes, rectangles, boolean pixel masks, and what evaluation adds to the
+//! workspace's RGB image type ([`RgbImageExt`] on `image::Rgb32FImage`).
 //!
 //! Pixel (x, y) is column x, row y from the top-left corner; storage is row-major.
 
+use image::Rgb32FImage;
 use serde::{Deserialize, Serialize};
 
 use crate::error::MetricError;
@@ -38,18 +40,38 @@ pub struct PixelRect {
     pub size: ImageSize,
 }
 
-/// An RGB image with three interleaved f32 channels per pixel, nominally in [0, 1].
-///
-/// 8-bit sources become `value / 255` computed in f32, exactly as the reference loader converts them.
-#[derive(Debug, Clone, PartialEq)]
-pub struct RgbImageF32 {
-    size: ImageSize,
-    data: Vec<f32>,
+/// What evaluation needs of an RGB image beyond the `image` crate's: the one RGB image type of the workspace
+/// is [`Rgb32FImage`] (three interleaved f32 channels per pixel, row-major, nominally in [0, 1]; 8-bit
+/// sources become `value / 255` computed in f32, exactly as the reference loader converts them), read by
+/// the data layer and rendered by the model alike.
+pub trait RgbImageExt: Sized {
+    /// Wraps row-major RGB values; fails unless they hold 3 finite values per pixel.
+    fn from_values(size: ImageSize, data: Vec<f32>) -> Result<Self, MetricError>;
+
+    /// An all-black image.
+    fn black(size: ImageSize) -> Self;
+
+    /// Width and height.
+    fn size(&self) -> ImageSize;
+
+    /// The RGB values of pixel `(x, y)`; panics outside the image.
+    fn pixel(&self, x: u32, y: u32) -> [f32; 3];
+
+    /// Sets one pixel; non-finite values are the caller's bug, so they panic.
+    fn set_pixel(&mut self, x: u32, y: u32, rgb: [f32; 3]);
+
+    /// The rectangle `rect` as a new image; panics if it leaves the image.
+    fn crop_rect(&self, rect: PixelRect) -> Self;
+
+    /// A copy with every pixel outside `mask` set to 0 (black).
+    fn zeroed_outside(&self, mask: &PixelMask) -> Result<Self, MetricError>;
+
+    /// Fails with the first non-finite value's index.
+    fn check_finite(&self) -> Result<(), MetricError>;
 }
 
-impl RgbImageF32 {
-    /// Wraps row-major RGB data; fails unless it holds 3 finite values per pixel.
-    pub fn new(size: ImageSize, data: Vec<f32>) -> Result<Self, MetricError> {
+impl RgbImageExt for Rgb32FImage {
+    fn from_values(size: ImageSize, data: Vec<f32>) -> Result<Self, MetricError> {
         let expected = size.pixels() * 3;
         if data.len() != expected {
             return Err(MetricError::DataLength {
@@ -58,93 +80,68 @@ impl RgbImageF32 {
                 got: data.len(),
             });
         }
-        if let Some((index, &value)) = data.iter().enumerate().find(|(_, v)| !v.is_finite()) {
-            return Err(MetricError::NonFinite { index, value });
-        }
-        Ok(Self { size, data })
+        let image = Rgb32FImage::from_raw(size.width, size.height, data)
+            .expect("the length is checked above");
+        image.check_finite()?;
+        Ok(image)
     }
 
-    /// An all-black image.
-    pub fn black(size: ImageSize) -> Self {
-        Self {
-            size,
-            data: vec![0.0; size.pixels() * 3],
-        }
+    fn black(size: ImageSize) -> Self {
+        Rgb32FImage::new(size.width, size.height)
     }
 
-    pub fn size(&self) -> ImageSize {
-        self.size
+    fn size(&self) -> ImageSize {
+        ImageSize::new(self.width(), self.height())
     }
 
-    pub fn width(&self) -> u32 {
-        self.size.width
+    fn pixel(&self, x: u32, y: u32) -> [f32; 3] {
+        assert!(
+            x < self.width() && y < self.height(),
+            "pixel ({x}, {y}) outside {}",
+            self.size()
+        );
+        self.get_pixel(x, y).0
     }
 
-    pub fn height(&self) -> u32 {
-        self.size.height
-    }
-
-    /// Row-major interleaved RGB values.
-    pub fn data(&self) -> &[f32] {
-        &self.data
-    }
-
-    pub fn pixel(&self, x: u32, y: u32) -> [f32; 3] {
-        let i = self.index(x, y);
-        [self.data[i], self.data[i + 1], self.data[i + 2]]
-    }
-
-    /// Sets one pixel; non-finite values are the caller's bug, so they panic.
-    pub fn set_pixel(&mut self, x: u32, y: u32, rgb: [f32; 3]) {
+    fn set_pixel(&mut self, x: u32, y: u32, rgb: [f32; 3]) {
         assert!(
             rgb.iter().all(|v| v.is_finite()),
             "non-finite pixel value {rgb:?}"
         );
-        let i = self.index(x, y);
-        self.data[i..i + 3].copy_from_slice(&rgb);
+        self.put_pixel(x, y, image::Rgb(rgb));
     }
 
-    /// The rectangle `rect` as a new image; panics if it leaves the image.
-    pub fn crop(&self, rect: PixelRect) -> Self {
+    fn crop_rect(&self, rect: PixelRect) -> Self {
         assert!(
-            rect.x + rect.size.width <= self.size.width
-                && rect.y + rect.size.height <= self.size.height,
+            rect.x + rect.size.width <= self.width() && rect.y + rect.size.height <= self.height(),
             "crop {rect:?} leaves a {} image",
-            self.size
+            self.size()
         );
-        let mut data = Vec::with_capacity(rect.size.pixels() * 3);
-        for y in rect.y..rect.y + rect.size.height {
-            let start = self.index(rect.x, y);
-            data.extend_from_slice(&self.data[start..start + rect.size.width as usize * 3]);
-        }
-        Self {
-            size: rect.size,
-            data,
-        }
+        image::imageops::crop_imm(self, rect.x, rect.y, rect.size.width, rect.size.height)
+            .to_image()
     }
 
-    /// A copy with every pixel outside `mask` set to 0 (black).
-    pub fn zeroed_outside(&self, mask: &PixelMask) -> Result<Self, MetricError> {
-        ensure_same_size(self.size, mask.size())?;
-        let mut data = self.data.clone();
-        for (rgb, &inside) in data.chunks_exact_mut(3).zip(mask.bits()) {
+    fn zeroed_outside(&self, mask: &PixelMask) -> Result<Self, MetricError> {
+        ensure_same_size(self.size(), mask.size())?;
+        let mut out = self.clone();
+        for (rgb, &inside) in out.pixels_mut().zip(mask.bits()) {
             if !inside {
-                rgb.fill(0.0);
+                rgb.0 = [0.0; 3];
             }
         }
-        Ok(Self {
-            size: self.size,
-            data,
-        })
+        Ok(out)
     }
 
-    fn index(&self, x: u32, y: u32) -> usize {
-        assert!(
-            x < self.size.width && y < self.size.height,
-            "pixel ({x}, {y}) outside {}",
-            self.size
-        );
-        (y as usize * self.size.width as usize + x as usize) * 3
+    fn check_finite(&self) -> Result<(), MetricError> {
+        match self
+            .as_raw()
+            .iter()
+            .enumerate()
+            .find(|(_, v)| !v.is_finite())
+        {
+            Some((index, &value)) => Err(MetricError::NonFinite { index, value }),
+            None => Ok(()),
+        }
     }
 }
 
@@ -263,13 +260,13 @@ mod tests {
     fn crop_and_zeroing_keep_the_right_pixels() {
         let size = ImageSize::new(4, 3);
         let data: Vec<f32> = (0..36).map(|i| i as f32 / 36.0).collect();
-        let image = RgbImageF32::new(size, data).unwrap();
+        let image = Rgb32FImage::from_values(size, data).unwrap();
         let rect = PixelRect {
             x: 1,
             y: 1,
             size: ImageSize::new(2, 2),
         };
-        let cropped = image.crop(rect);
+        let cropped = image.crop_rect(rect);
         assert_eq!(cropped.pixel(0, 0), image.pixel(1, 1));
         assert_eq!(cropped.pixel(1, 1), image.pixel(2, 2));
         let mask = PixelMask::from_fn(size, |x, _| x == 3);
@@ -282,14 +279,15 @@ mod tests {
     fn bad_data_is_rejected_with_its_position() {
         let size = ImageSize::new(2, 1);
         assert_eq!(
-            RgbImageF32::new(size, vec![0.0; 5]),
+            Rgb32FImage::from_values(size, vec![0.0; 5]),
             Err(MetricError::DataLength {
                 size,
                 expected: 6,
                 got: 5
             })
         );
-        let err = RgbImageF32::new(size, vec![0.0, 0.0, 0.0, f32::NAN, 0.0, 0.0]).unwrap_err();
+        let err =
+            Rgb32FImage::from_values(size, vec![0.0, 0.0, 0.0, f32::NAN, 0.0, 0.0]).unwrap_err();
         assert!(
             matches!(err, MetricError::NonFinite { index: 3, .. }),
             "{err}"

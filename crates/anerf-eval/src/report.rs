@@ -18,7 +18,9 @@ use crate::images::{
     quantised, read_mask, read_rgb, side_by_side, write_mask_png, write_png, PngDepth,
 };
 use crate::metrics::ImageMetrics;
-use crate::pixels::{PixelMask, RgbImageF32};
+use image::Rgb32FImage;
+
+use crate::pixels::PixelMask;
 use anerf_data::atomic::write_with;
 
 /// The two evaluations of the paper.
@@ -158,8 +160,8 @@ impl EvalRecorder {
         &mut self,
         frame: FrameId,
         view: ViewId,
-        pred: &RgbImageF32,
-        gt: &RgbImageF32,
+        pred: &Rgb32FImage,
+        gt: &Rgb32FImage,
         mask: &PixelMask,
     ) -> Result<ImageRecord, EvalError> {
         let pred = quantised(pred, PngDepth::Sixteen);

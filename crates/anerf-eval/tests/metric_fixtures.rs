@@ -1,9 +1,12 @@
 //! PSNR and SSIM against numpy and scikit-image (`scripts/fixtures/metrics.py`).
 
-use anerf_eval::{ImageMetrics, ImageSize, PixelMask, RgbImageF32};
+use anerf_eval::{ImageMetrics, ImageSize, PixelMask, RgbImageExt};
+use image::Rgb32FImage;
 use serde_json::Value;
 
 mod support;
+
+use anerf_testing::Tolerance;
 
 /// A metric value of the fixture: a number, or the string "inf" for identical pixels.
 fn metric(v: &Value) -> f64 {
@@ -17,16 +20,12 @@ fn metric(v: &Value) -> f64 {
 
 /// Checks `got` against the reference to 1e-6 and returns the absolute deviation (0 for matching infinities).
 fn assert_close(name: &str, what: &str, got: f64, expected: f64) -> f64 {
-    let deviation = if expected.is_infinite() && got == expected {
-        0.0
-    } else {
-        (got - expected).abs()
-    };
-    assert!(
-        deviation <= 1e-6,
-        "{name}: {what} {got} vs scikit-image/numpy {expected}"
-    );
-    deviation
+    anerf_testing::assert_close(
+        &format!("{name}: {what} against scikit-image/numpy"),
+        &[got],
+        &[expected],
+        Tolerance::Absolute(1e-6),
+    )
 }
 
 #[test]
@@ -52,7 +51,7 @@ fn psnr_and_ssim_match_numpy_and_scikit_image() {
                 .iter()
                 .map(|v| v.as_f64().unwrap() as f32)
                 .collect();
-            RgbImageF32::new(size, data).unwrap()
+            Rgb32FImage::from_values(size, data).unwrap()
         };
         let mask = case.get("mask").map(|m| {
             PixelMask::new(

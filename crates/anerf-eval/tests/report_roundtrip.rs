@@ -8,13 +8,14 @@ use anerf_eval::report::{
     read_records_json, read_summary_json, recompute_from_saved, EvalRecorder, EvalSplit,
     ImageRecord,
 };
-use anerf_eval::{ImageMetrics, ImageSize, PixelMask, RgbImageF32};
+use anerf_eval::{ImageMetrics, ImageSize, PixelMask, RgbImageExt};
+use image::Rgb32FImage;
 use rand::rngs::StdRng;
 use rand::{Rng, SeedableRng};
 
 /// A smooth ground truth with a black background outside an ellipse, a noisy prediction of it, and the
 /// "ray hits the box" mask: a rectangle around the ellipse.
-fn sample(rng: &mut StdRng, size: ImageSize) -> (RgbImageF32, RgbImageF32, PixelMask) {
+fn sample(rng: &mut StdRng, size: ImageSize) -> (Rgb32FImage, Rgb32FImage, PixelMask) {
     let (w, h) = (size.width as f32, size.height as f32);
     let (cx, cy) = (
         w * rng.random_range(0.4..0.6),
@@ -23,8 +24,8 @@ fn sample(rng: &mut StdRng, size: ImageSize) -> (RgbImageF32, RgbImageF32, Pixel
     let body = |x: u32, y: u32| {
         ((x as f32 - cx) / (0.3 * w)).powi(2) + ((y as f32 - cy) / (0.35 * h)).powi(2) <= 1.0
     };
-    let mut gt = RgbImageF32::black(size);
-    let mut pred = RgbImageF32::black(size);
+    let mut gt = Rgb32FImage::black(size);
+    let mut pred = Rgb32FImage::black(size);
     for y in 0..size.height {
         for x in 0..size.width {
             if body(x, y) {
@@ -163,7 +164,7 @@ fn a_tampered_image_changes_the_recomputation() {
         .path()
         .join("images")
         .join(format!("{}_pred.png", record.stem()));
-    let blank = quantised(&RgbImageF32::black(pred.size()), PngDepth::Sixteen);
+    let blank = quantised(&Rgb32FImage::black(pred.size()), PngDepth::Sixteen);
     anerf_eval::images::write_png(&saved, &blank, PngDepth::Sixteen).unwrap();
     let recomputed = recompute_from_saved(dir.path()).unwrap();
     assert_ne!(recomputed[0].psnr, record.psnr);

@@ -4,7 +4,7 @@ use anerf_core::geometry::{Aabb, Camera};
 use anerf_core::model::{AnimatableNerf, CanonicalInputs, FrameInputs};
 use anerf_core::{FrameId, ViewId};
 use anerf_data::{image_rays, SamplerOptions};
-use anerf_eval::{ImageSize, PixelMask, RgbImageF32};
+use anerf_eval::{ImageSize, PixelMask, RgbImageExt};
 use anyhow::{Context, Result};
 use image::{GrayImage, Rgb32FImage};
 
@@ -14,9 +14,9 @@ use crate::experiment::Experiment;
 /// A rendered image with what the protocol compares it against.
 pub struct RenderedImage {
     /// Prediction on black, black outside `mask`.
-    pub prediction: RgbImageF32,
+    pub prediction: Rgb32FImage,
     /// Ground truth with background and out-of-box pixels black (when the view has an image).
-    pub ground_truth: Option<RgbImageF32>,
+    pub ground_truth: Option<Rgb32FImage>,
     /// Pixels whose ray hits the padded body box (`mask_at_box`).
     pub mask: PixelMask,
     /// Rays rendered (pixels inside `mask`).
@@ -79,7 +79,7 @@ pub fn render_shot(
     )
     .context("casting the image's rays")?;
     let size = ImageSize::new(rays.width, rays.height);
-    let mut prediction = RgbImageF32::black(size);
+    let mut prediction = Rgb32FImage::black(size);
     let mut hit = vec![false; size.pixels()];
     let (mut surviving_samples, mut shaded_samples, mut total_samples) = (0, 0, 0);
     for start in (0..rays.rays.len()).step_by(settings.chunk.max(1)) {
@@ -95,13 +95,9 @@ pub fn render_shot(
             hit[(*v * size.width + *u) as usize] = true;
         }
     }
-    let ground_truth = rays.ground_truth.map(|gt| {
-        let data: Vec<f32> = gt.pixels().flat_map(|p| p.0).collect();
-        RgbImageF32::new(size, data).expect("the sampler's image has the camera's size")
-    });
     Ok(RenderedImage {
         prediction,
-        ground_truth,
+        ground_truth: rays.ground_truth,
         mask: PixelMask::new(size, hit).expect("sized from the image"),
         rays: rays.rays.len(),
         surviving_samples,

@@ -11,6 +11,7 @@ use anerf_core::model::AnimatableNerf;
 use anerf_core::tensor::to_host;
 use anerf_eval::images::read_rgb;
 use anerf_eval::ImageMetrics;
+use anerf_eval::RgbImageExt;
 use anerf_train::checkpoint::Checkpoint;
 use anerf_train::experiment::Experiment;
 use anerf_train::jobs::{self, RenderJob};

@@ -507,8 +507,18 @@ mod tests {
         let (value, grad) = run(true);
         let (expected_value, expected_grad) = run(false);
         assert!(crate::kernels::warp::available(&device));
-        crate::tensor::assert_close("trilinear value", &value, &expected_value, 1e-5);
-        crate::tensor::assert_close("trilinear gradient", &grad, &expected_grad, 1e-4);
+        anerf_testing::assert_close(
+            "trilinear value",
+            &value,
+            &expected_value,
+            anerf_testing::Tolerance::Relative(1e-5),
+        );
+        anerf_testing::assert_close(
+            "trilinear gradient",
+            &grad,
+            &expected_grad,
+            anerf_testing::Tolerance::Relative(1e-4),
+        );
         assert!(grad.contains(&0.0) && grad.iter().any(|g| *g != 0.0));
     }
 

@@ -1,9 +1,9 @@
-//! Helpers shared by the integration tests: fixture paths and JSON, and running the numpy checker on
-//! written files.
+//! Helpers shared by the data integration tests: running the numpy checker on written files, copying and
+//! cutting files (fixtures and comparison: the `anerf-testing` crate).
 
 #![allow(dead_code)]
 
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::process::Command;
 
 /// Runs `scripts/fixtures/check_synthetic.py <folder> <manifest>` and fails the test, with the script's
@@ -33,30 +33,6 @@ pub fn numpy_check(folder: &Path, manifest: &serde_json::Value) {
         out.status
     );
     println!("{}", stdout.trim());
-}
-
-/// A fixture path; panics with the script to run when it is missing.
-pub fn fixture(rel: &str) -> PathBuf {
-    let path = anerf_core::fixtures_dir().join(rel);
-    assert!(
-        path.exists(),
-        "fixture {} is missing; run `python3 scripts/fixtures/generate.py` (module datasets.py) first",
-        path.display()
-    );
-    path
-}
-
-pub fn json(rel: &str) -> serde_json::Value {
-    let path = fixture(rel);
-    serde_json::from_str(&std::fs::read_to_string(&path).unwrap()).unwrap()
-}
-
-pub fn floats(v: &serde_json::Value) -> Vec<f64> {
-    match v {
-        serde_json::Value::Array(items) => items.iter().flat_map(floats).collect(),
-        serde_json::Value::Number(n) => vec![n.as_f64().unwrap()],
-        other => panic!("not a number array: {other}"),
-    }
 }
 
 /// Copies a fixture folder into a fresh temporary folder (for tests that break it).

@@ -1,4 +1,4 @@
-//! Helpers shared by the integration tests: reading fixtures written by `scripts/fixtures/generate.py`.
+//! Helpers shared by the eval integration tests: the fixtures written by `scripts/fixtures/<module>.py`.
 #![allow(dead_code)] // each test crate uses its own subset of these helpers
 
 use std::path::PathBuf;
@@ -7,18 +7,10 @@ use serde_json::Value;
 
 /// Path of fixture `name` written by `scripts/fixtures/<module>.py`.
 pub fn fixture_path(module: &str, name: &str) -> PathBuf {
-    anerf_core::fixtures_dir().join(module).join(name)
+    anerf_testing::fixture(&format!("{module}/{name}"))
 }
 
-/// Parses a JSON fixture; panics with the script to run when it is missing.
+/// Fixture `name` of `scripts/fixtures/<module>.py`, parsed as JSON.
 pub fn load_json(module: &str, name: &str) -> Value {
-    let path = fixture_path(module, name);
-    let text = std::fs::read_to_string(&path).unwrap_or_else(|e| {
-        panic!(
-            "cannot read fixture {}: {e}; run `python3 scripts/fixtures/generate.py` (module {module}.py) first",
-            path.display()
-        )
-    });
-    serde_json::from_str(&text)
-        .unwrap_or_else(|e| panic!("fixture {} is not valid JSON: {e}", path.display()))
+    anerf_testing::json(&format!("{module}/{name}"))
 }

@@ -108,7 +108,7 @@ fn render_pose_files(
     path: &Path,
     view: Option<usize>,
     options: &JobOptions,
-) -> Result<(String, Vec<anerf_eval::RgbImageF32>)> {
+) -> Result<(String, Vec<image::Rgb32FImage>)> {
     let view = view.unwrap_or(exp.train_views[0].0);
     let camera = dataset_camera(exp, view)?;
     let sequence = crate::poses::PoseSequence::load(path, &exp.prepared)?;
@@ -151,7 +151,7 @@ fn render_dataset_shots(
     exp: &mut Experiment,
     shots: &[DatasetShot],
     options: &JobOptions,
-) -> Result<Vec<anerf_eval::RgbImageF32>> {
+) -> Result<Vec<image::Rgb32FImage>> {
     let bar = options.bar("render", shots.len());
     let mut frames = Vec::with_capacity(shots.len());
     for (frame, camera) in shots {

@@ -20,8 +20,9 @@ use super::*;
 use crate::device::cpu_device;
 use crate::device::probe::device_for_test;
 use crate::model::hash_grid::encode_reference;
-use crate::tensor::{assert_close, from_rows, to_host};
+use crate::tensor::{from_rows, to_host};
 use crate::DeviceChoice;
+use anerf_testing::{assert_close, Tolerance};
 
 /// The wgpu device for the test at `path` (under `kernels::hash_grid::cube_tests::`), or `None` (printed).
 fn gpu(test: &str) -> Option<Device> {
@@ -61,12 +62,17 @@ fn cube_encode_matches_flex_and_the_reference() {
         let got = encode_on(&gpu, true);
         assert_eq!(got.len(), n * spec.output_dim());
         let what = |against: &str| format!("F = {features}: encoding vs {against}");
-        assert_close(&what("flex"), &got, &encode_on(&cpu_device(), true), 1e-5);
+        assert_close(
+            &what("flex"),
+            &got,
+            &encode_on(&cpu_device(), true),
+            Tolerance::Relative(1e-5),
+        );
         assert_close(
             &what("reference on wgpu"),
             &got,
             &encode_on(&gpu, false),
-            1e-5,
+            Tolerance::Relative(1e-5),
         );
     }
 }
@@ -85,10 +91,20 @@ fn cube_gradients_match_flex_and_the_reference() {
         assert!(gp.contains(&0.0) && gp.iter().any(|&v| v != 0.0));
         assert!(gt.iter().any(|&v| v != 0.0));
         let what = |of: &str, against: &str| format!("F = {features}: d/d{of} vs {against}");
-        assert_close(&what("points", "flex"), &gp, &fp, 1e-3);
-        assert_close(&what("points", "reference on wgpu"), &gp, &rp, 1e-3);
-        assert_close(&what("table", "flex"), &gt, &ft, 1e-4);
-        assert_close(&what("table", "reference on wgpu"), &gt, &rt, 1e-4);
+        assert_close(&what("points", "flex"), &gp, &fp, Tolerance::Relative(1e-3));
+        assert_close(
+            &what("points", "reference on wgpu"),
+            &gp,
+            &rp,
+            Tolerance::Relative(1e-3),
+        );
+        assert_close(&what("table", "flex"), &gt, &ft, Tolerance::Relative(1e-4));
+        assert_close(
+            &what("table", "reference on wgpu"),
+            &gt,
+            &rt,
+            Tolerance::Relative(1e-4),
+        );
     }
 }
 

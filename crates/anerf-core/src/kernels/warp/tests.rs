@@ -6,7 +6,8 @@ use crate::device::cpu_device;
 use crate::geometry::lbs::tests::{random_skeleton_and_pose, TestRng};
 use crate::geometry::{BoneMatrices, BoneTransforms, CanonicalPose};
 use crate::model::blend::prior_softmax_reference;
-use crate::tensor::{assert_close, from_rows, to_host};
+use crate::tensor::{from_rows, to_host};
+use anerf_testing::{assert_close, Tolerance};
 
 /// Values and input gradients of `Σ f(a, b) ⊙ c` for a fixed random `c`.
 struct Differentiated {
@@ -39,6 +40,7 @@ fn differentiate(
 }
 
 fn compare(what: &str, got: &Differentiated, expected: &Differentiated, tolerance: f32) {
+    let tolerance = Tolerance::Relative(tolerance.into());
     assert_close(
         &format!("{what}: value"),
         &got.value,
