@@ -9,7 +9,7 @@ use anerf_data::formats::{self, NdArray};
 use anerf_data::prepare::nearest::MeshIndex;
 use anerf_data::prepare::resize::{resize_area, resize_nearest};
 use anerf_data::prepare::undistort::UndistortMap;
-use anerf_data::prepare::{compute_volume, FrameSelection, NearestMethod, VolumeGrid};
+use anerf_data::prepare::{compute_volume, FrameSelection, ImageScale, NearestMethod, VolumeGrid};
 use anerf_data::{load_zju_mocap, prepare, LoadOptions, PrepareOptions, SkinningWeights};
 use anerf_testing::{fixture, floats, json};
 use glam::{Mat3, Vec3};
@@ -101,7 +101,7 @@ fn resizing_matches_opencv_area_and_nearest() {
             case["width"].as_u64().unwrap() as u32,
             case["height"].as_u64().unwrap() as u32,
         );
-        let ratio = case["ratio"].as_f64().unwrap() as f32;
+        let ratio = ImageScale::try_from(case["ratio"].as_f64().unwrap() as f32).unwrap();
         assert_eq!(
             (
                 anerf_data::prepare::resize::scaled_size(img.width(), ratio),
@@ -596,7 +596,7 @@ fn the_visual_hull_holds_the_posed_body_and_carves_the_box_corners() {
     let p = prepare(
         &subject,
         &PrepareOptions {
-            ratio: 1.0,
+            ratio: ImageScale::FULL,
             ..options(&dir.path().join("cache"))
         },
     )

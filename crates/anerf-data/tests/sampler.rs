@@ -3,7 +3,7 @@
 
 use anerf_core::{FrameId, ViewId};
 use anerf_data::formats::{self, NdArray};
-use anerf_data::prepare::FrameSelection;
+use anerf_data::prepare::{FrameSelection, ImageScale};
 use anerf_data::sampler::{box_mask, edge_band};
 use anerf_data::{
     image_rays, load_zju_mocap, prepare, LoadOptions, PrepareOptions, PreparedSubject, RaySampler,
@@ -22,7 +22,7 @@ fn prepared(cache: &std::path::Path) -> PreparedSubject {
         load_zju_mocap(&fixture("zju_mocap/CoreView_377"), &LoadOptions::default()).unwrap();
     let options = PrepareOptions {
         cache_dir: cache.to_path_buf(),
-        ratio: 1.0,
+        ratio: ImageScale::FULL,
         frames: FrameSelection {
             start: 0,
             end: Some(2),

@@ -101,7 +101,7 @@ fn zju_mocap_ranges_match_the_reference() {
             "{seq}"
         );
         assert_eq!(c.dataset.train_views, vec![0, 6, 12, 18]);
-        assert_eq!((c.dataset.ratio, c.eval.frame_interval), (0.5, 30));
+        assert_eq!((c.dataset.ratio.get(), c.eval.frame_interval), (0.5, 30));
     }
     let c = config::load(
         &configs_dir().join("zju_mocap/390.toml"),

@@ -25,6 +25,7 @@ use serde::{Deserialize, Serialize};
 use self::cache::{entry_dir, read_volume, volume_bytes, Fingerprint};
 pub use self::new_pose::PosedBody;
 pub use self::progress::{PrepareProgress, Silent};
+pub use self::resize::ImageScale;
 use self::resize::{resize_area, resize_nearest, scaled_size};
 use self::undistort::UndistortMap;
 pub use self::volumes::{compute_volume, NearestMethod, VolumeGrid};
@@ -67,7 +68,7 @@ pub struct PrepareOptions {
     /// Root of the cache; results go to `<cache_dir>/v2/<fingerprint>/`.
     pub cache_dir: PathBuf,
     /// Image scale (0.5 for ZJU-MoCap's 1024² → 512², 1 for H36M); `K[:2] *= ratio` as the reference.
-    pub ratio: f32,
+    pub ratio: ImageScale,
     pub frames: FrameSelection,
     /// Cameras whose images to prepare (`None` = all).
     pub views: Option<Vec<usize>>,
@@ -85,7 +86,7 @@ impl Default for PrepareOptions {
     fn default() -> Self {
         Self {
             cache_dir: PathBuf::from("cache"),
-            ratio: 0.5,
+            ratio: ImageScale::HALF,
             frames: FrameSelection::default(),
             views: None,
             nearest: NearestMethod::Surface,
@@ -292,12 +293,6 @@ pub fn prepare_with(
             subject.cameras.len()
         )));
     }
-    if !(options.ratio > 0.0 && options.ratio <= 1.0) {
-        return Err(settings(format!(
-            "ratio {} must lie in (0, 1]",
-            options.ratio
-        )));
-    }
     let dir = entry_dir(
         &options.cache_dir,
         &fingerprint(subject, options, &frames, &views)?,
@@ -455,12 +450,12 @@ pub fn prepare_with(
 }
 
 /// The camera of the undistorted image resized by `ratio`: `D = 0`, `K[:2] *= ratio`, size `int(n · ratio)`.
-pub fn working_camera(raw: &Camera, ratio: f32) -> Camera {
+pub fn working_camera(raw: &Camera, ratio: ImageScale) -> Camera {
     let mut cam = Camera {
         distortion: Distortion::default(),
         ..raw.clone()
     }
-    .resized(ratio);
+    .resized(ratio.get());
     cam.width = scaled_size(raw.width, ratio);
     cam.height = scaled_size(raw.height, ratio);
     cam

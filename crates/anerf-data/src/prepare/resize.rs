@@ -2,10 +2,47 @@
 //! `INTER_NEAREST` for masks. The output size is `int(size · ratio)` (truncated), as in the reference.
 
 use image::{GrayImage, Rgb32FImage};
+use serde::{Deserialize, Serialize};
+
+/// The factor from a camera's stored image size to the working size, `0 < ratio ≤ 1` (checked when built,
+/// so every holder of one, a config or [`super::PrepareOptions`], is valid). Serialised as the number.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(try_from = "f32", into = "f32")]
+pub struct ImageScale(f32);
+
+impl ImageScale {
+    /// Full size (H36M's working resolution).
+    pub const FULL: Self = Self(1.0);
+    /// Half size (ZJU-MoCap's 1024² images at 512²).
+    pub const HALF: Self = Self(0.5);
+
+    /// The factor.
+    pub fn get(self) -> f32 {
+        self.0
+    }
+}
+
+impl TryFrom<f32> for ImageScale {
+    type Error = String;
+
+    fn try_from(ratio: f32) -> Result<Self, String> {
+        if ratio.is_finite() && ratio > 0.0 && ratio <= 1.0 {
+            Ok(Self(ratio))
+        } else {
+            Err(format!("{ratio} (expected an image scale 0 < ratio ≤ 1)"))
+        }
+    }
+}
+
+impl From<ImageScale> for f32 {
+    fn from(scale: ImageScale) -> f32 {
+        scale.0
+    }
+}
 
 /// `int(n · ratio)`, at least 1.
-pub fn scaled_size(n: u32, ratio: f32) -> u32 {
-    ((n as f64 * ratio as f64) as u32).max(1)
+pub fn scaled_size(n: u32, ratio: ImageScale) -> u32 {
+    ((n as f64 * ratio.get() as f64) as u32).max(1)
 }
 
 /// Per output index, the source indices and weights of OpenCV's area interpolation along one axis
@@ -71,4 +108,23 @@ pub fn resize_nearest(mask: &GrayImage, width: u32, height: u32) -> GrayImage {
         let v = ((y as f64 * sy).floor() as u32).min(mask.height() - 1);
         *mask.get_pixel(u, v)
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn an_image_scale_is_a_factor_in_zero_to_one_and_serialises_as_the_number() {
+        for bad in [0.0, -0.5, 1.5, f32::NAN, f32::INFINITY] {
+            let err = ImageScale::try_from(bad).unwrap_err();
+            assert!(err.contains("0 < ratio ≤ 1"), "{bad}: {err}");
+            assert!(serde_json::from_str::<ImageScale>(&format!("{bad:?}")).is_err());
+        }
+        let half: ImageScale = serde_json::from_str("0.5").unwrap();
+        assert_eq!(half, ImageScale::HALF);
+        assert_eq!(serde_json::to_string(&ImageScale::FULL).unwrap(), "1.0");
+        assert_eq!(scaled_size(1024, half), 512);
+        assert_eq!(scaled_size(1, half), 1);
+    }
 }

@@ -2,6 +2,7 @@
 
 use std::path::Path;
 
+use anerf_data::prepare::ImageScale;
 use anerf_data::DatasetKind;
 use anyhow::{Context, Result};
 use serde::Serialize;
@@ -22,7 +23,7 @@ struct FolderConfig {
 struct FolderDataset {
     format: DatasetFormat,
     root: String,
-    ratio: f32,
+    ratio: ImageScale,
     train_views: Vec<usize>,
     iccv: FrameSplit,
 }
@@ -80,9 +81,9 @@ pub fn folder_table(data: &Path) -> Result<Table> {
         .replace(['/', '\\'], "_");
     // Full-HD captures train at half resolution, as the ZJU-MoCap configs do.
     let ratio = if subject.cameras.first().is_some_and(|c| c.width >= 1000) {
-        0.5
+        ImageScale::HALF
     } else {
-        1.0
+        ImageScale::FULL
     };
     let folder = FolderConfig {
         name,

@@ -5,6 +5,7 @@ use std::path::{Path, PathBuf};
 
 use anerf_core::model::ModelConfig;
 use anerf_core::DeviceChoice;
+use anerf_data::prepare::ImageScale;
 use serde::{Deserialize, Serialize};
 use toml::{Table, Value};
 
@@ -113,7 +114,7 @@ pub struct DatasetConfig {
     /// The subject folder (relative paths are relative to the directory anerf runs in).
     pub root: PathBuf,
     /// Image scale factor applied after undistortion (0.5 for ZJU-MoCap, 1 for H36M).
-    pub ratio: f32,
+    pub ratio: ImageScale,
     pub train_views: Vec<usize>,
     /// Views used for evaluation; empty means every view not used for training.
     #[serde(default)]

@@ -7,12 +7,6 @@ pub fn validate(c: &ExperimentConfig) -> Result<(), ConfigError> {
     let bad = |key: &str, why: String| Err(ConfigError::Invalid(format!("{key}: {why}")));
     c.model.validate().map_err(ConfigError::Invalid)?;
     let d = &c.dataset;
-    if !(d.ratio.is_finite() && d.ratio > 0.0 && d.ratio <= 1.0) {
-        return bad(
-            "dataset.ratio",
-            format!("{} (expected 0 < ratio ≤ 1)", d.ratio),
-        );
-    }
     if d.train_views.is_empty() {
         return bad(
             "dataset.train_views",

@@ -125,7 +125,7 @@ fn reference_posed_mesh(
     exp.check_renderable(frame, model)?;
     let inputs = exp.frame_inputs(frame)?;
     let hull = if job.carve {
-        let radius = VisualHull::reference_radius(exp.config.dataset.ratio);
+        let radius = VisualHull::reference_radius(exp.config.dataset.ratio.get());
         Some(VisualHull::of_frame(
             &exp.prepared,
             frame,
