@@ -54,8 +54,8 @@ pub(super) trait Step {
         means: &WindowMeans,
         validation_psnr: Option<f64>,
     ) -> (Option<RenderFigures>, String);
-    /// The state a checkpoint of this step saves (`None`: the fit is not recorded).
-    fn checkpointed(&self) -> Option<&TrainerState>;
+    /// Where a recorded fit writes and the state its checkpoints save; `None`: nothing is written.
+    fn record(&self) -> Option<(&Record<'_>, &TrainerState)>;
 }
 
 /// Stage 1's figures in a line of `metrics.jsonl`: the rendering's.
@@ -103,8 +103,8 @@ impl<'a> Record<'a> {
 }
 
 /// Runs `step` from its counters to `cfg.iterations` steps (or a stop) and returns the model and how the
-/// fit ended. With a `record`, every `cfg.checkpoint_every` steps and at the end a checkpoint is written
-/// and every `cfg.log_every` steps a line of `metrics.jsonl`; without, nothing is written.
+/// fit ended. For a recorded step ([`Step::record`]), every `cfg.checkpoint_every` steps and at the end a
+/// checkpoint is written and every `cfg.log_every` steps a line of `metrics.jsonl`; else nothing is written.
 pub(super) fn drive(
     step: &mut impl Step,
     mut model: AnimatableNerf,
@@ -112,7 +112,6 @@ pub(super) fn drive(
     cfg: &StageConfig,
     options: TrainOptions,
     stop: &AtomicBool,
-    record: Option<Record>,
 ) -> Result<(AnimatableNerf, StageOutcome)> {
     let first_step = step.counters().step;
     let bar = StageProgress::new(step.label(), first_step, cfg.iterations, options.progress);
@@ -133,8 +132,8 @@ pub(super) fn drive(
                 "{} stopped at step {done}: the loss is {}; {}",
                 step.label(),
                 values.loss,
-                match &record {
-                    Some(r) => format!(
+                match step.record() {
+                    Some((r, _)) => format!(
                         "the last good checkpoint in {} is kept (lower the learning rate or check the \
                          data, then `--resume`)",
                         r.run.checkpoints().display()
@@ -161,7 +160,7 @@ pub(super) fn drive(
             let means = step.counters().window.close();
             let (rendering, message) = step.figures(&means, validation_psnr);
             bar.report(done, &message);
-            if let Some(r) = &record {
+            if let Some((r, _)) = step.record() {
                 r.log.append(&LogLine {
                     stage: r.stage,
                     step: done,
@@ -176,10 +175,10 @@ pub(super) fn drive(
         }
         bar.set_step(done);
         if cfg.checkpoint_every > 0 && done % cfg.checkpoint_every == 0 {
-            save(step, record.as_ref(), &model, &optim)?;
+            save(step, &model, &optim)?;
         }
     }
-    save(step, record.as_ref(), &model, &optim)?;
+    save(step, &model, &optim)?;
     let steps = step.counters().step;
     let ending = match (interrupted, step.counters().plateau.reached) {
         (true, _) => "interrupted",
@@ -197,16 +196,9 @@ pub(super) fn drive(
 }
 
 /// A checkpoint of the step's state, when the fit is recorded.
-fn save(
-    step: &impl Step,
-    record: Option<&Record>,
-    model: &AnimatableNerf,
-    optim: &ModuleOptimizer,
-) -> Result<()> {
-    match (record, step.checkpointed()) {
-        (Some(r), Some(state)) => {
-            Checkpoint::save(&r.run.checkpoints(), state, model, optim).map(drop)
-        }
-        _ => Ok(()),
+fn save(step: &impl Step, model: &AnimatableNerf, optim: &ModuleOptimizer) -> Result<()> {
+    match step.record() {
+        Some((r, state)) => Checkpoint::save(&r.run.checkpoints(), state, model, optim).map(drop),
+        None => Ok(()),
     }
 }

@@ -64,14 +64,14 @@ pub fn train_stage1(
         let model = AnimatableNerf::new(&model_cfg, exp.model_sizes(), &device);
         (model, optimizer(cfg.grad_clip), state)
     };
-    let record = Record::open(run, Stage::Train, state.counters.step)?;
     let mut step = Stage1 {
+        record: Record::open(run, Stage::Train, state.counters.step)?,
         exp,
         run,
         cfg: &cfg,
         state,
     };
-    let (_, outcome) = drive(&mut step, model, optim, &cfg, options, stop, Some(record))?;
+    let (_, outcome) = drive(&mut step, model, optim, &cfg, options, stop)?;
     Ok(outcome)
 }
 
@@ -81,6 +81,7 @@ struct Stage1<'a> {
     run: &'a RunDir,
     cfg: &'a StageConfig,
     state: TrainerState,
+    record: Record<'a>,
 }
 
 impl Step for Stage1<'_> {
@@ -212,8 +213,8 @@ impl Step for Stage1<'_> {
         (Some(figures), message)
     }
 
-    fn checkpointed(&self) -> Option<&TrainerState> {
-        Some(&self.state)
+    fn record(&self) -> Option<(&Record<'_>, &TrainerState)> {
+        Some((&self.record, &self.state))
     }
 }
 

@@ -93,13 +93,13 @@ pub fn train_stage2(
             seconds: 0.0,
         });
     }
-    let record = Record::open(run, Stage::Animate, state.counters.step)?;
     let mut step = Stage2 {
+        record: Record::open(run, Stage::Animate, state.counters.step)?,
         exp,
         cfg: &cfg,
         state,
     };
-    let (_, outcome) = drive(&mut step, model, optim, &cfg, options, stop, Some(record))?;
+    let (_, outcome) = drive(&mut step, model, optim, &cfg, options, stop)?;
     Ok(outcome)
 }
 
@@ -108,6 +108,7 @@ struct Stage2<'a> {
     exp: &'a mut Experiment,
     cfg: &'a StageConfig,
     state: TrainerState,
+    record: Record<'a>,
 }
 
 impl Step for Stage2<'_> {
@@ -144,8 +145,8 @@ impl Step for Stage2<'_> {
         (None, message)
     }
 
-    fn checkpointed(&self) -> Option<&TrainerState> {
-        Some(&self.state)
+    fn record(&self) -> Option<(&Record<'_>, &TrainerState)> {
+        Some((&self.record, &self.state))
     }
 }
 
@@ -228,7 +229,7 @@ pub fn fit_pose_codes(
     };
     let never = AtomicBool::new(false);
     let optim = optimizer(cfg.grad_clip);
-    let (model, _) = drive(&mut step, model, optim, cfg, options, &never, None)?;
+    let (model, _) = drive(&mut step, model, optim, cfg, options, &never)?;
     Ok(model.no_grad())
 }
 
@@ -265,7 +266,7 @@ impl Step for PoseFit<'_> {
         (None, format!("loss {:.6}", means.loss))
     }
 
-    fn checkpointed(&self) -> Option<&TrainerState> {
+    fn record(&self) -> Option<(&Record<'_>, &TrainerState)> {
         None
     }
 }
