@@ -9,6 +9,7 @@ pub mod info;
 pub mod loaders;
 pub mod prepare;
 pub mod sampler;
+pub mod smpl;
 pub mod splits;
 pub mod subject;
 pub mod synthetic;

@@ -3,7 +3,7 @@
 //! `new_params/`, `new_vertices/`, `lbs/`) and differ in a few rules captured by [`DatasetKind`].
 
 mod annots;
-mod arrays;
+pub(crate) mod arrays;
 pub mod check;
 mod image_files;
 mod lbs;

@@ -1,0 +1,149 @@
+//! The SMPL-family forward model against numpy's (`scripts/fixtures/smpl.py`), on random SMPL-like models
+//! written as `.npz` and `.pkl`, and the model files' bad input.
+
+use std::collections::BTreeMap;
+use std::path::Path;
+
+use anerf_data::formats::{ArrayData, NdArray};
+use anerf_data::smpl::{SmplModel, SmplParams};
+use anerf_testing::{assert_close, fixture, floats, json, Tolerance};
+use glam::DVec3;
+
+fn vec3(v: &serde_json::Value) -> DVec3 {
+    let f = floats(v);
+    DVec3::new(f[0], f[1], f[2])
+}
+
+fn flat(points: &[DVec3]) -> Vec<f64> {
+    points.iter().flat_map(|p| p.to_array()).collect()
+}
+
+#[test]
+fn posed_vertices_and_joints_match_numpy_for_npz_and_pkl_with_and_without_correctives() {
+    let index = json("smpl/index.json");
+    for model in index["models"].as_array().unwrap() {
+        let name = model["name"].as_str().unwrap();
+        for ext in ["npz", "pkl"] {
+            let smpl = SmplModel::read(&fixture(&format!("smpl/{name}.{ext}"))).unwrap();
+            assert_eq!(
+                (smpl.num_joints(), smpl.num_vertices(), smpl.num_betas()),
+                (
+                    model["joints"].as_u64().unwrap() as usize,
+                    model["vertices"].as_u64().unwrap() as usize,
+                    model["betas"].as_u64().unwrap() as usize
+                ),
+                "{name}.{ext}: sizes from the file"
+            );
+            for (i, case) in model["cases"].as_array().unwrap().iter().enumerate() {
+                let params = SmplParams {
+                    betas: floats(&case["betas"]),
+                    poses: floats(&case["poses"]),
+                    rh: vec3(&case["Rh"]),
+                    th: vec3(&case["Th"]),
+                };
+                for (correctives, key) in [(true, "with"), (false, "without")] {
+                    let posed = smpl.pose(&params, correctives);
+                    let what = format!("{name}.{ext} case {i} {key} correctives");
+                    // Metres: the bound is 1e-5 m; f64 against f64 agrees far closer.
+                    assert_close(
+                        &format!("{what}: vertices"),
+                        &flat(&posed.vertices),
+                        &floats(&case[format!("vertices_{key}")]),
+                        Tolerance::Absolute(1e-9),
+                    );
+                    assert_close(
+                        &format!("{what}: joints"),
+                        &flat(&posed.joints),
+                        &floats(&case[format!("joints_{key}")]),
+                        Tolerance::Absolute(1e-9),
+                    );
+                }
+            }
+        }
+    }
+}
+
+#[test]
+fn the_correctives_move_the_body_so_the_comparison_can_tell_them_apart() {
+    let index = json("smpl/index.json");
+    let case = &index["models"][0]["cases"][0];
+    let with = floats(&case["vertices_with"]);
+    let without = floats(&case["vertices_without"]);
+    let moved = with
+        .iter()
+        .zip(&without)
+        .map(|(a, b)| (a - b).abs())
+        .fold(0.0, f64::max);
+    assert!(moved > 1e-4, "pose correctives move vertices by {moved} m");
+}
+
+/// The arrays of fixture model `name`, to break one at a time.
+fn arrays(name: &str) -> BTreeMap<String, NdArray> {
+    anerf_data::formats::npz::read_npz(&fixture(&format!("smpl/{name}.npz"))).unwrap()
+}
+
+fn error_of(arrays: &BTreeMap<String, NdArray>) -> String {
+    SmplModel::from_arrays(arrays, Path::new("model.npz"))
+        .unwrap_err()
+        .to_string()
+}
+
+#[test]
+fn a_missing_key_or_inconsistent_shapes_name_the_key_and_the_expected_shape() {
+    let mut a = arrays("tree9");
+    a.remove("posedirs");
+    let err = error_of(&a);
+    assert!(
+        err.contains("model.npz") && err.contains("'posedirs'"),
+        "{err}"
+    );
+
+    let mut a = arrays("tree9");
+    let w = a["weights"].clone();
+    let rows = w.shape()[0] - 1;
+    a.insert(
+        "weights".into(),
+        NdArray::new(
+            vec![rows, w.shape()[1]],
+            ArrayData::F64(w.to_f64()[..rows * w.shape()[1]].to_vec()),
+        )
+        .unwrap(),
+    );
+    let err = error_of(&a);
+    assert!(
+        err.contains("weights has shape (59, 9), expected (60, any)"),
+        "{err}"
+    );
+
+    let mut a = arrays("tree9");
+    let j = a["J_regressor"].clone();
+    a.insert(
+        "J_regressor".into(),
+        NdArray::new(vec![9, 30], ArrayData::F64(j.to_f64()[..270].to_vec())).unwrap(),
+    );
+    let err = error_of(&a);
+    assert!(
+        err.contains("J_regressor has shape (9, 30), expected (9, 60)"),
+        "{err}"
+    );
+
+    let mut a = arrays("tree9");
+    let mut pd = a["posedirs"].to_f64();
+    pd[5] = f64::NAN;
+    a.insert(
+        "posedirs".into(),
+        NdArray::new(a["posedirs"].shape().to_vec(), ArrayData::F64(pd)).unwrap(),
+    );
+    let err = error_of(&a);
+    assert!(err.contains("posedirs holds a non-finite value"), "{err}");
+
+    let mut a = arrays("tree9");
+    let mut tree = a["kintree_table"].to_i64().unwrap();
+    tree[3] = 5; // joint 3's parent after it
+    a.insert(
+        "kintree_table".into(),
+        NdArray::new(vec![2, 9], ArrayData::I64(tree)).unwrap(),
+    );
+    let err = error_of(&a);
+    assert!(err.contains("joint 3 the parent 5"), "{err}");
+}
