@@ -1,5 +1,5 @@
 //! The SMPL-family forward model against numpy's (`scripts/fixtures/smpl.py`), on random SMPL-like models
-//! written as `.npz` and `.pkl`, and the model files' bad input.
+//! written as `.npz`, plain-array `.pkl` and chumpy/scipy-sparse `.pkl`, and the model files' bad input.
 
 use std::collections::BTreeMap;
 use std::path::Path;
@@ -23,8 +23,15 @@ fn posed_vertices_and_joints_match_numpy_for_npz_and_pkl_with_and_without_correc
     let index = json("smpl/index.json");
     for model in index["models"].as_array().unwrap() {
         let name = model["name"].as_str().unwrap();
-        for ext in ["npz", "pkl"] {
-            let smpl = SmplModel::read(&fixture(&format!("smpl/{name}.{ext}"))).unwrap();
+        // The .npz and plain-array .pkl conversions, and the original releases' layout: chumpy arrays and a
+        // scipy CSC J_regressor.
+        for ext in ["npz", "pkl", "chumpy.pkl"] {
+            let file = if ext == "chumpy.pkl" {
+                format!("smpl/{name}_chumpy.pkl")
+            } else {
+                format!("smpl/{name}.{ext}")
+            };
+            let smpl = SmplModel::read(&fixture(&file)).unwrap();
             assert_eq!(
                 (smpl.num_joints(), smpl.num_vertices(), smpl.num_betas()),
                 (
@@ -146,4 +153,22 @@ fn a_missing_key_or_inconsistent_shapes_name_the_key_and_the_expected_shape() {
     );
     let err = error_of(&a);
     assert!(err.contains("joint 3 the parent 5"), "{err}");
+}
+
+#[test]
+fn a_sparse_matrix_index_outside_it_and_a_chumpy_object_without_its_array_are_refused_naming_the_file(
+) {
+    for (file, expected) in [
+        ("bad_sparse.pkl", "indptr, indices and data disagree"),
+        ("chumpy_without_x.pkl", "has no 'x' array"),
+    ] {
+        let path = fixture(&format!("smpl/{file}"));
+        let err = anerf_data::formats::read_pickle(&path)
+            .unwrap_err()
+            .to_string();
+        assert!(
+            err.contains(file) && err.contains(expected),
+            "{file}: {err}"
+        );
+    }
 }

@@ -206,6 +206,17 @@ enum Global {
     Scalar,
     FromBuffer,
     CodecsEncode,
+    /// A class whose instances are rebuilt as data from their `__dict__` (never by calling the class).
+    Data(DataClass),
+}
+
+/// The classes of the original SMPL `.pkl` releases, read as the arrays they hold.
+#[derive(Debug, Clone, Copy, PartialEq)]
+enum DataClass {
+    /// `chumpy.ch.Ch`: its array is the `x` of its state.
+    Chumpy,
+    /// `scipy.sparse` CSC or CSR matrices (`data`, `indices`, `indptr`, `_shape`), read as dense f64.
+    Sparse { by_columns: bool },
 }
 
 impl Global {
@@ -221,6 +232,13 @@ impl Global {
             ("numpy.core.numeric" | "numpy._core.numeric", "_frombuffer") => Global::FromBuffer,
             // Protocol 2 pickles from Python 3 store bytes as `_codecs.encode(text, 'latin1')`.
             ("_codecs", "encode") => Global::CodecsEncode,
+            ("chumpy.ch", "Ch") => Global::Data(DataClass::Chumpy),
+            ("scipy.sparse._csc" | "scipy.sparse.csc", "csc_matrix") => {
+                Global::Data(DataClass::Sparse { by_columns: true })
+            }
+            ("scipy.sparse._csr" | "scipy.sparse.csr", "csr_matrix") => {
+                Global::Data(DataClass::Sparse { by_columns: false })
+            }
             _ => return Err(PickleError::Refused(format!("{module}.{name}"))),
         })
     }
@@ -243,6 +261,11 @@ enum Obj {
     },
     /// `_reconstruct(ndarray, …)` awaiting its BUILD state.
     PendingArray,
+    /// `NEWOBJ` of a [`DataClass`]; `state` is the dict its BUILD gave.
+    Instance {
+        class: DataClass,
+        state: Option<Id>,
+    },
     Objects {
         shape: Vec<usize>,
         items: Vec<Id>,
@@ -703,9 +726,22 @@ impl<'a> Machine<'a> {
                     let target = self.top()?;
                     self.build(target, state)?;
                 }
-                0x81 | 0x92 => {
+                0x81 => {
+                    let args = self.pop()?;
+                    let cls = self.pop()?;
+                    let class = match (self.global_of(cls), &self.arena[args]) {
+                        (Some(Global::Data(class)), Obj::Tuple(a)) if a.is_empty() => class,
+                        _ => {
+                            return Err(self.malformed(
+                                "NEWOBJ: only chumpy arrays and scipy sparse matrices are rebuilt, as data",
+                            ))
+                        }
+                    };
+                    self.push(Obj::Instance { class, state: None })?;
+                }
+                0x92 => {
                     return Err(
-                        self.malformed("NEWOBJ: constructing class instances is not allowed")
+                        self.malformed("NEWOBJ_EX: constructing class instances is not allowed")
                     )
                 }
                 _ => return Err(PickleError::Opcode { op, at }),
@@ -857,6 +893,9 @@ impl<'a> Machine<'a> {
                 Ok(Obj::Leaf(Value::Bytes(bytes)))
             }
             Global::NdarrayClass => Err(self.malformed("calling numpy.ndarray directly")),
+            Global::Data(class) => Err(self.malformed(format!(
+                "calling {class:?}: its objects are only rebuilt from their state (NEWOBJ, BUILD)"
+            ))),
         }
     }
 
@@ -1010,7 +1049,19 @@ impl<'a> Machine<'a> {
                 }
                 Ok(())
             }
-            _ => Err(self.malformed("BUILD on an object that is not a numpy array or dtype")),
+            Obj::Instance { class, state: None } => {
+                if !matches!(self.arena[state], Obj::Dict(_)) {
+                    return Err(self.malformed(format!("{class:?} state: expected a dict")));
+                }
+                self.arena[target] = Obj::Instance {
+                    class,
+                    state: Some(state),
+                };
+                Ok(())
+            }
+            _ => Err(self.malformed(
+                "BUILD on an object that is not a numpy array, dtype, chumpy array or sparse matrix",
+            )),
         }
     }
 
@@ -1053,7 +1104,78 @@ impl<'a> Machine<'a> {
             Obj::Global(g) => return Err(self.malformed(format!("bare global {g:?} in the data"))),
             Obj::Dtype { typestr, .. } => Value::Str(typestr.clone()),
             Obj::PendingArray => return Err(self.malformed("ndarray without its state")),
+            Obj::Instance { class, state } => {
+                let state =
+                    state.ok_or_else(|| self.malformed(format!("{class:?} without its state")))?;
+                let state = self.to_value(state, depth + 1, budget)?;
+                self.data_instance(*class, &state, budget)?
+            }
         })
+    }
+
+    /// The array a chumpy object or sparse matrix holds, from its state dict.
+    fn data_instance(
+        &self,
+        class: DataClass,
+        state: &Value,
+        budget: &mut Budget,
+    ) -> Result<Value, PickleError> {
+        let array = |key: &str| match state.get(key) {
+            Some(Value::Array(a)) => Ok(a),
+            _ => Err(self.malformed(format!("{class:?} state has no '{key}' array"))),
+        };
+        match class {
+            DataClass::Chumpy => Ok(Value::Array(array("x")?.clone())),
+            DataClass::Sparse { by_columns } => {
+                let [rows, cols] = match state.get("_shape") {
+                    Some(Value::Tuple(t)) => match t.as_slice() {
+                        [Value::Int(r), Value::Int(c)] if *r >= 0 && *c >= 0 => {
+                            [*r as usize, *c as usize]
+                        }
+                        _ => return Err(self.malformed("sparse matrix _shape: expected two sizes")),
+                    },
+                    _ => return Err(self.malformed("sparse matrix state has no '_shape'")),
+                };
+                let (data, indices, indptr) = (
+                    array("data")?.to_f64(),
+                    array("indices")?.to_i64(),
+                    array("indptr")?.to_i64(),
+                );
+                let (Some(indices), Some(indptr)) = (indices, indptr) else {
+                    return Err(self.malformed("sparse matrix indices are not integers"));
+                };
+                let (outer, inner) = if by_columns {
+                    (cols, rows)
+                } else {
+                    (rows, cols)
+                };
+                let cells = rows.saturating_mul(cols);
+                budget.take(cells.saturating_mul(8))?;
+                self.meter.items::<f64>(cells)?;
+                let bad = || self.malformed("sparse matrix: indptr, indices and data disagree");
+                if indptr.len() != outer + 1 || indices.len() != data.len() {
+                    return Err(bad());
+                }
+                let mut dense = vec![0.0; cells];
+                for o in 0..outer {
+                    let (a, b) = (indptr[o], indptr[o + 1]);
+                    if a < 0 || b < a || b as usize > data.len() {
+                        return Err(bad());
+                    }
+                    for n in a as usize..b as usize {
+                        let i = usize::try_from(indices[n])
+                            .ok()
+                            .filter(|&i| i < inner)
+                            .ok_or_else(bad)?;
+                        let (r, c) = if by_columns { (i, o) } else { (o, i) };
+                        dense[r * cols + c] += data[n];
+                    }
+                }
+                NdArray::new(vec![rows, cols], super::npy::ArrayData::F64(dense))
+                    .map(Value::Array)
+                    .map_err(|e| self.malformed(e.to_string()))
+            }
+        }
     }
 }
 
