@@ -6,11 +6,10 @@
 //! (N/(N−1)), K1 = 0.01, K2 = 0.03, data range 2, the mean over the pixels at least 3 px from the border,
 //! averaged over the three channels.
 
+use image::Rgb32FImage;
 use serde::{Deserialize, Serialize};
 
 use crate::error::MetricError;
-use image::Rgb32FImage;
-
 use crate::pixels::{ensure_same_size, ImageSize, PixelMask, RgbImageExt};
 
 /// Side of the square SSIM window, in pixels.

@@ -11,6 +11,8 @@ use std::io::Write;
 use std::path::{Path, PathBuf};
 
 use anerf_core::{FrameId, ViewId};
+use anerf_data::atomic::write_with;
+use image::Rgb32FImage;
 use serde::{Deserialize, Serialize};
 
 use crate::error::EvalError;
@@ -18,10 +20,7 @@ use crate::images::{
     quantised, read_mask, read_rgb, side_by_side, write_mask_png, write_png, PngDepth,
 };
 use crate::metrics::ImageMetrics;
-use image::Rgb32FImage;
-
 use crate::pixels::PixelMask;
-use anerf_data::atomic::write_with;
 
 /// The two evaluations of the paper.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]

@@ -7,10 +7,11 @@ use std::path::Path;
 use anerf_core::geometry::Skeleton;
 use glam::Vec3;
 
-use super::arrays::{faces, field, finite, points};
+use super::arrays::{faces, finite, points};
 use super::check::Checker;
 use crate::error::DataError;
-use crate::formats::{self, NdArray, Value};
+use crate::formats::{self, NdArray};
+use crate::smpl;
 use crate::subject::{BodyModel, SkinningWeights};
 
 /// What could be read of a body model; each file is checked on its own, so one bad file hides no other.
@@ -105,41 +106,19 @@ fn read_mesh_file(
             ),
         });
     };
-    let (w, f) = read_body_model_file(model)?;
+    let arrays = smpl::read_model_arrays(model)?;
+    let take = |key: &str| {
+        arrays.get(key).ok_or_else(|| {
+            DataError::invalid(
+                model,
+                format!("has no '{key}' array (expected 'weights' and 'f')"),
+            )
+        })
+    };
     Ok((
-        weights(&w, model, joints, vertices)?,
-        faces(&f, model, vertices)?,
+        weights(take("weights")?, model, joints, vertices)?,
+        faces(take("f")?, model, vertices)?,
     ))
-}
-
-/// `weights` and `f` of a body-model file (`.npz`, or `.pkl` read by the restricted unpickler).
-pub fn read_body_model_file(path: &Path) -> Result<(NdArray, NdArray), DataError> {
-    let ext = path.extension().and_then(|e| e.to_str()).unwrap_or("");
-    match ext {
-        "npz" => {
-            let mut members = formats::npz::read_npz(path)?;
-            let mut take = |key: &str| {
-                members.remove(key).ok_or_else(|| {
-                    DataError::invalid(
-                        path,
-                        format!("has no '{key}' array (expected 'weights' and 'f')"),
-                    )
-                })
-            };
-            Ok((take("weights")?, take("f")?))
-        }
-        "pkl" => {
-            let v: Value = formats::read_pickle(path)?;
-            Ok((
-                field(&v, "weights", path)?.clone(),
-                field(&v, "f", path)?.clone(),
-            ))
-        }
-        _ => Err(DataError::invalid(
-            path,
-            "unknown body-model format (expected a .npz or .pkl file)",
-        )),
-    }
 }
 
 /// `V × K` weights; a count left `None` (its own file was unreadable) is taken as stored.

@@ -17,7 +17,6 @@ use serde::{Deserialize, Serialize};
 
 pub use check::Problem;
 pub(crate) use image_files::tally;
-pub use lbs::read_body_model_file;
 pub use poses::{pose_files, read_pose_file};
 
 use self::annots::{FramePaths, RawCamera};

@@ -42,18 +42,7 @@ pub struct SmplModel {
 impl SmplModel {
     /// Reads a `.npz` or `.pkl` model file; errors name the file, the key and the expected shape.
     pub fn read(path: &Path) -> Result<Self, DataError> {
-        let ext = path.extension().and_then(|e| e.to_str()).unwrap_or("");
-        let arrays = match ext {
-            "npz" => formats::npz::read_npz(path)?,
-            "pkl" => pickle_arrays(&formats::read_pickle(path)?, path)?,
-            _ => {
-                return Err(DataError::invalid(
-                    path,
-                    "unknown body-model format (expected an SMPL-family .npz or .pkl file)",
-                ))
-            }
-        };
-        Self::from_arrays(&arrays, path)
+        Self::from_arrays(&read_model_arrays(path)?, path)
     }
 
     /// Builds the model from its named arrays (`path` names the file in errors).
@@ -141,18 +130,26 @@ impl SmplModel {
     }
 }
 
-/// The arrays of a pickled model dict (other entries, such as `bs_style`, are ignored).
-fn pickle_arrays(value: &Value, path: &Path) -> Result<BTreeMap<String, NdArray>, DataError> {
-    let Value::Dict(entries) = value else {
-        return Err(DataError::invalid(
+/// The named arrays of a body-model file: an `.npz`, or a `.pkl` dict read by the restricted unpickler
+/// (entries that are not arrays, such as `bs_style`, are left out).
+pub fn read_model_arrays(path: &Path) -> Result<BTreeMap<String, NdArray>, DataError> {
+    match path.extension().and_then(|e| e.to_str()).unwrap_or("") {
+        "npz" => formats::npz::read_npz(path),
+        "pkl" => match formats::read_pickle(path)? {
+            Value::Dict(entries) => Ok(entries
+                .iter()
+                .filter_map(|(k, v)| Some((k.as_str()?.to_string(), v.as_array()?.clone())))
+                .collect()),
+            other => Err(DataError::invalid(
+                path,
+                format!("holds {}, expected a dict of arrays", other.kind()),
+            )),
+        },
+        _ => Err(DataError::invalid(
             path,
-            format!("holds {}, expected a dict of arrays", value.kind()),
-        ));
-    };
-    Ok(entries
-        .iter()
-        .filter_map(|(k, v)| Some((k.as_str()?, v.as_array()?.clone())))
-        .collect())
+            "unknown body-model format (expected an SMPL-family .npz or .pkl file)",
+        )),
+    }
 }
 
 /// Parents from `kintree_table` (`2 × K`: parents, then the joints' own ids; the root's parent is −1 or

@@ -100,6 +100,11 @@ impl<'a> Record<'a> {
             log: MetricsLog::open(run.metrics_log(), stage, step)?,
         })
     }
+
+    /// The run folder this record writes into.
+    pub fn run(&self) -> &'a RunDir {
+        self.run
+    }
 }
 
 /// Runs `step` from its counters to `cfg.iterations` steps (or a stop) and returns the model and how the

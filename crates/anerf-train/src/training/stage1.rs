@@ -67,7 +67,6 @@ pub fn train_stage1(
     let mut step = Stage1 {
         record: Record::open(run, Stage::Train, state.counters.step)?,
         exp,
-        run,
         cfg: &cfg,
         state,
     };
@@ -78,7 +77,6 @@ pub fn train_stage1(
 /// A stage-1 step: one ray batch of a random training frame and view, rendered and compared.
 struct Stage1<'a> {
     exp: &'a mut Experiment,
-    run: &'a RunDir,
     cfg: &'a StageConfig,
     state: TrainerState,
     record: Record<'a>,
@@ -186,7 +184,11 @@ impl Step for Stage1<'_> {
         let metrics = ImageMetrics::compute(&image.prediction, gt, Some(&image.mask))
             .context("validation metrics")?;
         write_png(
-            &self.run.renders().join(format!("validation_{step:08}.png")),
+            &self
+                .record
+                .run()
+                .renders()
+                .join(format!("validation_{step:08}.png")),
             &image.prediction,
             PngDepth::Eight,
         )?;
