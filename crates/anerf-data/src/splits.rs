@@ -93,7 +93,7 @@ pub fn reference_split(
                 },
             )
         }
-        DatasetKind::Synthetic => return None,
+        DatasetKind::Synthetic | DatasetKind::EasyMocap => return None,
     };
     let train_views: Vec<usize> = train_views.into_iter().filter(|&v| v < cameras).collect();
     Some(Split {

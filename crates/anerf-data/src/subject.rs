@@ -1,12 +1,16 @@
 //! One captured person: calibrated cameras, per-frame images, masks and poses, and the body model.
 //! Every loader (ZJU-MoCap, Human3.6M, synthetic) produces this type.
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
 
 use anerf_core::geometry::{Camera, Pose, Skeleton};
 use anerf_core::FrameId;
 use glam::Vec3;
 use serde::{Deserialize, Serialize};
+
+use crate::error::DataError;
+use crate::smpl::{SmplModel, SmplParams};
 
 /// Which layout a subject was read from.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
@@ -15,6 +19,8 @@ pub enum DatasetKind {
     ZjuMocap,
     H36m,
     Synthetic,
+    /// An EasyMocap capture folder (`intri.yml`, `extri.yml`, `images/`, SMPL fits), with a body-model file.
+    EasyMocap,
 }
 
 /// A multi-view video of one person, as calibrated and fitted.
@@ -46,8 +52,50 @@ pub struct FrameRecord {
     /// Absolute mask path per camera (non-zero = foreground).
     pub masks: Vec<PathBuf>,
     pub pose: Pose,
-    /// Posed body-model vertices in world space (metres), `new_vertices/{i}.npy`.
-    pub vertices: PathBuf,
+    /// Posed body-model vertices in world space (metres).
+    pub vertices: PosedVertices,
+}
+
+/// Where a frame's posed body-model vertices (world space, metres) come from.
+#[derive(Debug, Clone)]
+pub enum PosedVertices {
+    /// A `V × 3` `.npy` file (`new_vertices/{i}.npy`).
+    File(PathBuf),
+    /// The body model posed by the frame's fit (with pose correctives), computed when asked for.
+    Fitted(FittedPose),
+}
+
+/// A body model, its file and one frame's fitted parameters (from the fit file `fit`).
+#[derive(Debug, Clone)]
+pub struct FittedPose {
+    pub model: Arc<SmplModel>,
+    pub model_file: PathBuf,
+    pub fit: PathBuf,
+    pub params: SmplParams,
+}
+
+impl PosedVertices {
+    /// The vertices, `expected` of them when the count is known; a file must hold finite `V × 3` values.
+    pub fn read(&self, expected: Option<usize>) -> Result<Vec<Vec3>, DataError> {
+        match self {
+            PosedVertices::File(path) => crate::loaders::read_posed_vertices(path, expected),
+            PosedVertices::Fitted(f) => Ok(f
+                .model
+                .pose(&f.params, true)
+                .vertices
+                .iter()
+                .map(|v| v.as_vec3())
+                .collect()),
+        }
+    }
+
+    /// The files the vertices depend on (for cache fingerprints).
+    pub fn sources(&self) -> Vec<&Path> {
+        match self {
+            PosedVertices::File(path) => vec![path],
+            PosedVertices::Fitted(f) => vec![&f.fit, &f.model_file],
+        }
+    }
 }
 
 /// The subject's body model in canonical space.

@@ -172,3 +172,52 @@ fn a_sparse_matrix_index_outside_it_and_a_chumpy_object_without_its_array_are_re
         );
     }
 }
+
+/// The body derived for the subject (`SmplModel::body`), posed by anerf's own skinning (core's bone
+/// transforms and LBS, f32), lands where the model's forward pass without correctives puts it: for fully
+/// driven fits and for fits that drive only the first joints (the rest folded into their ancestors).
+#[test]
+fn the_derived_body_skinned_by_core_equals_the_model_without_correctives() {
+    use anerf_core::geometry::{forward_lbs_point, CanonicalPose, Pose};
+    let index = json("smpl/index.json");
+    for model in index["models"].as_array().unwrap() {
+        let name = model["name"].as_str().unwrap();
+        let smpl = SmplModel::read(&fixture(&format!("smpl/{name}.npz"))).unwrap();
+        for (i, case) in model["cases"].as_array().unwrap().iter().enumerate() {
+            let params = SmplParams {
+                betas: floats(&case["betas"]),
+                poses: floats(&case["poses"]),
+                rh: vec3(&case["Rh"]),
+                th: vec3(&case["Th"]),
+            };
+            let driven = params.poses.len() / 3;
+            let body = smpl.body(&params.betas, driven);
+            assert_eq!(body.skeleton.num_joints(), driven);
+            assert_eq!(body.weights.num_joints(), driven);
+            let f32s = |v: &[f64]| v.iter().map(|&x| x as f32).collect::<Vec<f32>>();
+            let rh = params.rh.as_vec3().to_array();
+            let th = params.th.as_vec3().to_array();
+            let pose = Pose::from_flat(&f32s(&params.poses), rh, th).unwrap();
+            let bones = body
+                .skeleton
+                .bone_transforms(&pose, CanonicalPose::TPose)
+                .unwrap();
+            let ours: Vec<f64> = body
+                .canonical_vertices
+                .iter()
+                .enumerate()
+                .flat_map(|(v, &x)| {
+                    let p = forward_lbs_point(x, body.weights.row(v), &bones).unwrap();
+                    pose.global.pose_to_world(p).as_dvec3().to_array()
+                })
+                .collect();
+            // f32 skinning of f64 reference values: the 1e-5 m bound.
+            assert_close(
+                &format!("{name} case {i} ({driven} of {} joints driven)", smpl.num_joints()),
+                &ours,
+                &floats(&case["vertices_without"]),
+                Tolerance::Absolute(1e-5),
+            );
+        }
+    }
+}

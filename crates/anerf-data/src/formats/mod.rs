@@ -7,6 +7,7 @@ pub mod images;
 pub mod npy;
 pub mod npy_write;
 pub mod npz;
+pub mod opencv_yaml;
 pub mod pickle;
 pub mod pickle_write;
 

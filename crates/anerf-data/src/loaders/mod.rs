@@ -24,7 +24,7 @@ use self::check::Checker;
 use self::image_files::Inside;
 use crate::error::DataError;
 use crate::formats;
-use crate::subject::{DatasetKind, FrameRecord, Subject};
+use crate::subject::{DatasetKind, FrameRecord, PosedVertices, Subject};
 
 /// What a loader needs besides the dataset folder.
 #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
@@ -153,7 +153,7 @@ pub(crate) fn read(
                 images,
                 masks,
                 pose,
-                vertices: vpath,
+                vertices: PosedVertices::File(vpath),
             });
         }
     }

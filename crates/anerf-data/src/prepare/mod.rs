@@ -313,10 +313,7 @@ pub fn prepare_with(
     let mut entries = Vec::with_capacity(frames.len());
     for &f in &frames {
         let rec = &subject.frames[f];
-        let world = crate::loaders::read_posed_vertices(
-            &rec.vertices,
-            Some(body.canonical_vertices.len()),
-        )?;
+        let world = rec.vertices.read(Some(body.canonical_vertices.len()))?;
         let pose_space: Vec<Vec3> = world
             .iter()
             .map(|&x| rec.pose.global.world_to_pose(x))
@@ -518,7 +515,9 @@ fn fingerprint(
     for &f in frames {
         let rec = &subject.frames[f];
         fp.add("frame", &json(&(f, rec.file_index, &rec.pose)));
-        fp.add_file(&rec.vertices)?;
+        for source in rec.vertices.sources() {
+            fp.add_file(source)?;
+        }
         for &v in views {
             fp.add_file(&rec.images[v])?;
             fp.add_file(&rec.masks[v])?;

@@ -5,6 +5,7 @@
 //! Units and frames: metres; the model's own frame (canonical, the T-pose at the origin) until the global
 //! `R(Rh) x + Th` of EasyMocap's fits places the body in the world. Vectors are column vectors.
 
+mod body;
 mod forward;
 
 use std::collections::BTreeMap;

@@ -22,7 +22,7 @@ use super::raster::{render, RenderedView, Scene};
 use super::rng::SplitMix64;
 use super::{Splits, SynthError, SyntheticSpec, SyntheticSummary, Timings};
 use crate::formats::{write_npy, write_object_npy, ArrayData, NdArray, PyValue};
-use crate::subject::{BodyModel, DatasetKind, FrameRecord, Subject};
+use crate::subject::{BodyModel, DatasetKind, FrameRecord, PosedVertices, Subject};
 
 /// Writes the subject of `spec` into the new folder `out_dir`. Everything goes into a temporary sibling
 /// folder first, renamed into place at the end, so `out_dir` either holds a complete subject or does not
@@ -211,7 +211,7 @@ fn write_into(
                     .map(|v| root.join(mask_path(v, i)))
                     .collect(),
                 pose: frame.pose.clone(),
-                vertices: root.join(format!("new_vertices/{i}.npy")),
+                vertices: PosedVertices::File(root.join(format!("new_vertices/{i}.npy"))),
             })
             .collect(),
         body: BodyModel {
