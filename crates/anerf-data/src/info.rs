@@ -71,25 +71,13 @@ pub fn inspect(root: &Path, options: &InspectOptions) -> Report {
         vertices: None,
         faces: None,
         file_indices: None,
-        optional_files: [
-            "new_params",
-            "new_vertices",
-            "params",
-            "vertices",
-            "mask_cihp",
-            "mask",
-            "lbs/weights.npy",
-            "lbs/faces.npy",
-            "lbs/bigpose_vertices.npy",
-            "lbs/tbw.npy",
-            "lbs/bweights",
-        ]
-        .into_iter()
-        .map(|name| OptionalFile {
-            name,
-            present: root.join(name).exists(),
-        })
-        .collect(),
+        optional_files: optional_files(kind)
+            .iter()
+            .map(|&name| OptionalFile {
+                name,
+                present: root.join(name).exists(),
+            })
+            .collect(),
         split: None,
         notes,
         problems,
@@ -112,8 +100,43 @@ pub fn inspect(root: &Path, options: &InspectOptions) -> Report {
     report
 }
 
+/// The optional files and folders of a layout, to show which are there.
+fn optional_files(kind: DatasetKind) -> &'static [&'static str] {
+    match kind {
+        DatasetKind::EasyMocap => &[
+            "mask",
+            "mask-schp",
+            loaders::easymocap::FIT_FOLDERS[0],
+            loaders::easymocap::FIT_FOLDERS[1],
+        ],
+        _ => &[
+            "new_params",
+            "new_vertices",
+            "params",
+            "vertices",
+            "mask_cihp",
+            "mask",
+            "lbs/weights.npy",
+            "lbs/faces.npy",
+            "lbs/bigpose_vertices.npy",
+            "lbs/tbw.npy",
+            "lbs/bweights",
+        ],
+    }
+}
+
 /// What can still be counted when the dataset does not load.
 fn partial_summary(root: &Path, report: &mut Report) {
+    if report.kind == DatasetKind::EasyMocap {
+        let names = formats::opencv_yaml::FileStorage::read(&root.join("intri.yml"))
+            .ok()
+            .and_then(|fs| fs.strings("names").ok().flatten());
+        report.cameras = names.as_ref().map(Vec::len);
+        report.frames = names
+            .and_then(|n| std::fs::read_dir(root.join("images").join(n.first()?)).ok())
+            .map(|entries| entries.count());
+        return;
+    }
     if let Ok(annots) = formats::read_npy_object(&root.join("annots.npy")) {
         report.cameras = annots
             .get("cams")

@@ -14,10 +14,13 @@ pub mod splits;
 pub mod subject;
 pub mod synthetic;
 pub mod visual_hull;
+pub mod zju_layout;
 
 pub use error::DataError;
 pub use info::{inspect, InspectOptions, Report};
 pub use loaders::{load, load_h36m, load_zju_mocap, LoadOptions};
 pub use prepare::{prepare, prepare_with, PrepareOptions, PrepareProgress, PreparedSubject};
 pub use sampler::{image_rays, ImageRays, ImageView, RaySampler, SamplerOptions};
-pub use subject::{BodyModel, DatasetKind, FittedPose, FrameRecord, PosedVertices, SkinningWeights, Subject};
+pub use subject::{
+    BodyModel, DatasetKind, FittedPose, FrameRecord, PosedVertices, SkinningWeights, Subject,
+};

@@ -89,6 +89,14 @@ impl PosedVertices {
         }
     }
 
+    /// The `.npy` file, for vertices stored in one.
+    pub fn file(&self) -> Option<&Path> {
+        match self {
+            PosedVertices::File(path) => Some(path),
+            PosedVertices::Fitted(_) => None,
+        }
+    }
+
     /// The files the vertices depend on (for cache fingerprints).
     pub fn sources(&self) -> Vec<&Path> {
         match self {

@@ -66,6 +66,7 @@ fn summaries_of_the_fake_datasets() {
             kind: None,
             load: LoadOptions {
                 body_model: Some(fixture("body_model/tiny_body.npz")),
+                ..Default::default()
             },
         },
     );

@@ -14,6 +14,7 @@ use glam::Vec3;
 fn body_npz() -> LoadOptions {
     LoadOptions {
         body_model: Some(fixture("body_model/tiny_body.npz")),
+        ..Default::default()
     }
 }
 
@@ -35,7 +36,11 @@ fn zju_313_style_folders_with_spaces_and_the_file_index_offset() {
         s.frames[0].masks[1].starts_with(root.join("mask"))
             && !s.frames[0].masks[1].starts_with(root.join("mask_cihp"))
     );
-    assert!(s.frames[2].vertices.ends_with("new_vertices/3.npy"));
+    assert!(s.frames[2]
+        .vertices
+        .file()
+        .unwrap()
+        .ends_with("new_vertices/3.npy"));
     assert!(s.notes.is_empty(), "{:?}", s.notes);
     for (c, cam) in s.cameras.iter().enumerate() {
         assert_eq!((cam.width, cam.height), (48, 40));
@@ -80,7 +85,11 @@ fn zju_377_style_falls_back_to_old_params_and_reads_lbs_weights() {
         [0, 1, 2, 3]
     );
     assert!(s.frames[0].images[3].ends_with("Camera_B4/000000.jpg"));
-    assert!(s.frames[1].vertices.ends_with("vertices/1.npy"));
+    assert!(s.frames[1]
+        .vertices
+        .file()
+        .unwrap()
+        .ends_with("vertices/1.npy"));
     assert_eq!(s.notes.len(), 2, "{:?}", s.notes);
     assert!(
         s.notes.iter().any(|n| n.contains("params/"))
@@ -110,6 +119,7 @@ fn body_model_from_pkl_matches_npz_and_lbs() {
         &root,
         &LoadOptions {
             body_model: Some(fixture("body_model/tiny_body.pkl")),
+            ..Default::default()
         },
     )
     .unwrap();

@@ -296,7 +296,7 @@ fn frame_vertices(
     subject: &anerf_data::Subject,
     f: usize,
 ) -> (Vec<Vec3>, Vec<Vec3>, anerf_core::geometry::Aabb) {
-    let world: Vec<Vec3> = formats::read_npy(&subject.frames[f].vertices)
+    let world: Vec<Vec3> = formats::read_npy(subject.frames[f].vertices.file().unwrap())
         .unwrap()
         .to_f32()
         .chunks(3)
@@ -324,6 +324,7 @@ fn prepare_writes_a_reusable_cache_and_rebuilds_on_change() {
     common::copy_tree(&fixture("zju_mocap/CoreView_313"), &data);
     let load = LoadOptions {
         body_model: Some(fixture("body_model/tiny_body.npz")),
+        ..Default::default()
     };
     let subject = load_zju_mocap(&data, &load).unwrap();
     let cache = dir.path().join("cache");

@@ -213,7 +213,10 @@ fn the_derived_body_skinned_by_core_equals_the_model_without_correctives() {
                 .collect();
             // f32 skinning of f64 reference values: the 1e-5 m bound.
             assert_close(
-                &format!("{name} case {i} ({driven} of {} joints driven)", smpl.num_joints()),
+                &format!(
+                    "{name} case {i} ({driven} of {} joints driven)",
+                    smpl.num_joints()
+                ),
                 &ours,
                 &floats(&case["vertices_without"]),
                 Tolerance::Absolute(1e-5),

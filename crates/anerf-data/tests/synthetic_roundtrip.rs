@@ -34,7 +34,7 @@ fn loading_a_written_subject_gives_back_what_was_written() {
         }
         assert!((a.pose.global.rh - b.pose.global.rh).abs().max_element() < 1e-6);
         assert!((a.pose.global.th - b.pose.global.th).abs().max_element() < 1e-6);
-        let vertices = read_npy(&a.vertices).unwrap().to_f32();
+        let vertices = read_npy(a.vertices.file().unwrap()).unwrap().to_f32();
         let expected: Vec<f32> = written.posed_vertices[i]
             .iter()
             .flat_map(|v| v.to_array())

@@ -73,7 +73,7 @@ fn manifest(s: &SyntheticSummary) -> Value {
             ])
         }));
         let verts = &s.posed_vertices[i];
-        files.push(json!({"path": relative(root, &frame.vertices), "kind": "npy", "expected": array("<f4", &[verts.len(), 3], json!(flat(verts)))}));
+        files.push(json!({"path": relative(root, frame.vertices.file().unwrap()), "kind": "npy", "expected": array("<f4", &[verts.len(), 3], json!(flat(verts)))}));
         for (v, (image, mask)) in frame.images.iter().zip(&frame.masks).enumerate() {
             let (w, h) = (cams[v].width, cams[v].height);
             files.push(

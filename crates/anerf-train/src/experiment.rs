@@ -8,7 +8,7 @@ use anerf_core::geometry::Aabb;
 use anerf_core::model::{AnimatableNerf, CanonicalInputs, FrameCode, FrameInputs, ModelSizes};
 use anerf_core::{FrameId, ViewId};
 use anerf_data::prepare::{FrameSelection, NearestMethod};
-use anerf_data::{DatasetKind, LoadOptions, PrepareOptions, PreparedSubject};
+use anerf_data::{DatasetKind, PrepareOptions, PreparedSubject};
 use anyhow::{bail, Context, Result};
 use burn::prelude::Device;
 
@@ -52,14 +52,7 @@ impl Experiment {
                 d.format
             );
         }
-        let subject = anerf_data::load(
-            &d.root,
-            kind,
-            &LoadOptions {
-                body_model: d.body_model.clone(),
-            },
-        )
-        .with_context(|| {
+        let subject = anerf_data::load(&d.root, kind, &d.load_options()).with_context(|| {
             format!(
                 "loading the dataset named by dataset.root = {}",
                 d.root.display()

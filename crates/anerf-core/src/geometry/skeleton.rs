@@ -145,16 +145,24 @@ impl Skeleton {
             .collect()
     }
 
-    /// The TPAMI code's "big pose": T-pose with the hips (joints 1 and 2) abducted by ±30° about z.
-    /// Skeletons with fewer than three joints have no hips and stay in T-pose.
-    fn big_pose_rotations(&self) -> Vec<Mat3> {
-        let mut r = vec![Mat3::IDENTITY; self.num_joints()];
+    /// The TPAMI code's "big pose": T-pose with the hips (joints 1 and 2) abducted by ±30° about z, at
+    /// the origin. Skeletons with fewer than three joints have no hips and stay in T-pose.
+    pub fn big_pose(&self) -> Pose {
+        let mut pose = Pose::zero(self.num_joints());
         if self.num_joints() > 2 {
             let a = 30f32.to_radians();
-            r[1] = axis_angle_to_matrix(Vec3::Z * a);
-            r[2] = axis_angle_to_matrix(Vec3::Z * -a);
+            pose.joint_rotations[1] = Vec3::Z * a;
+            pose.joint_rotations[2] = Vec3::Z * -a;
         }
-        r
+        pose
+    }
+
+    fn big_pose_rotations(&self) -> Vec<Mat3> {
+        self.big_pose()
+            .joint_rotations
+            .iter()
+            .map(|&t| axis_angle_to_matrix(t))
+            .collect()
     }
 }
 

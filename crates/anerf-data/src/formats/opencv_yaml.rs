@@ -355,8 +355,8 @@ fn matrix(fields: &[(String, Node)], key: &str) -> Result<Matrix, String> {
         }
     };
     let (rows, cols) = (count("rows")?, count("cols")?);
-    match field("dt")? {
-        Node::Scalar(dt) if ["d", "f", "i", "u", "s", "w", "c"].contains(&dt.as_str()) => {}
+    let single = match field("dt")? {
+        Node::Scalar(dt) if ["d", "f", "i", "u", "s", "w", "c"].contains(&dt.as_str()) => dt == "f",
         Node::Scalar(dt) => {
             return Err(format!(
                 "'{key}': dt {dt:?} is not a single-channel type (expected d, f, i, u, s, w or c)"
@@ -368,15 +368,16 @@ fn matrix(fields: &[(String, Node)], key: &str) -> Result<Matrix, String> {
                 other.kind()
             ))
         }
-    }
+    };
     let data = match field("data")? {
         Node::Seq(items) => items
             .iter()
             .enumerate()
             .map(|(i, item)| match item {
-                Node::Scalar(s) => {
-                    number(s).ok_or_else(|| format!("'{key}': data[{i}] is {s:?}, not a number"))
-                }
+                // A float32 matrix holds the nearest f32 of each printed value, as OpenCV reads it.
+                Node::Scalar(s) => number(s)
+                    .map(|x| if single { f64::from(x as f32) } else { x })
+                    .ok_or_else(|| format!("'{key}': data[{i}] is {s:?}, not a number")),
                 other => Err(format!(
                     "'{key}': data[{i}] is {}, expected a number",
                     other.kind()

@@ -147,11 +147,51 @@ fn camera_size(seen: &[(PathBuf, Size)], raw: Option<&RawCamera>) -> Option<Size
         .map(|(size, _)| size)
 }
 
-/// The mask of each listed image (see [`resolve_mask`]), checked to lie inside the folder.
+/// Where a layout keeps the mask of each image (given as its path relative to the dataset folder).
+pub(super) enum MaskRule {
+    /// `mask_cihp/<image>.png`, else `mask/<image>.png`, else (H36M, `images_to_mask`) the image path with
+    /// `images` replaced by `mask`.
+    Zju { images_to_mask: bool },
+    /// EasyMocap: the image `images/<cam>/<frame>.jpg` has its mask at `<folder>/<cam>/<frame>.png`, the
+    /// first of these folders that holds it.
+    Folders(Vec<String>),
+}
+
+impl MaskRule {
+    /// The rule of a ZJU-layout dataset.
+    pub fn of(kind: DatasetKind) -> Self {
+        MaskRule::Zju {
+            images_to_mask: kind == DatasetKind::H36m,
+        }
+    }
+
+    fn candidates(&self, root: &Path, image: &str) -> Vec<PathBuf> {
+        let stem = Path::new(image).with_extension("png");
+        match self {
+            MaskRule::Zju { images_to_mask } => {
+                let mut c = vec![
+                    root.join("mask_cihp").join(&stem),
+                    root.join("mask").join(&stem),
+                ];
+                if *images_to_mask {
+                    c.push(root.join(stem.to_string_lossy().replace("images", "mask")));
+                }
+                c
+            }
+            MaskRule::Folders(folders) => {
+                let inner = stem.strip_prefix("images").unwrap_or(&stem);
+                folders.iter().map(|f| root.join(f).join(inner)).collect()
+            }
+        }
+    }
+}
+
+/// The mask of each listed image (see [`MaskRule`]), checked to lie inside the folder. All candidates are
+/// named when none exists.
 pub(super) fn resolve_masks(
     root: &Path,
     inside: &Inside,
-    kind: DatasetKind,
+    rule: &MaskRule,
     ims: &[Option<FramePaths>],
     ck: &mut Checker,
 ) -> Result<Vec<Option<Vec<Option<PathBuf>>>>, DataError> {
@@ -162,7 +202,7 @@ pub(super) fn resolve_masks(
                 .iter()
                 .map(|p| match p {
                     Some(p) => ck.check(
-                        resolve_mask(root, kind, p).and_then(|m| inside.check(&m).map(|()| m)),
+                        resolve_mask(root, rule, p).and_then(|m| inside.check(&m).map(|()| m)),
                     ),
                     None => Ok(None),
                 })
@@ -172,17 +212,23 @@ pub(super) fn resolve_masks(
         .collect()
 }
 
-/// `mask_cihp/<image>.png`, else `mask/<image>.png`, else (H36M) the image path with `images` replaced by
-/// `mask`. All candidates are named when none exists.
-fn resolve_mask(root: &Path, kind: DatasetKind, image: &str) -> Result<PathBuf, DataError> {
-    let stem = Path::new(image).with_extension("png");
-    let mut candidates = vec![
-        root.join("mask_cihp").join(&stem),
-        root.join("mask").join(&stem),
-    ];
-    if kind == DatasetKind::H36m {
-        candidates.push(root.join(stem.to_string_lossy().replace("images", "mask")));
-    }
+/// One frame's absolute image and mask paths, when every camera has both (`None` when one is missing).
+pub(super) fn frame_files(
+    root: &Path,
+    images: &Option<FramePaths>,
+    masks: &Option<Vec<Option<PathBuf>>>,
+) -> Option<(Vec<PathBuf>, Vec<PathBuf>)> {
+    let images: Option<Vec<PathBuf>> = images
+        .iter()
+        .flatten()
+        .map(|p| p.as_ref().map(|p| root.join(p)))
+        .collect();
+    let masks: Option<Vec<PathBuf>> = masks.iter().flatten().cloned().collect();
+    images.zip(masks)
+}
+
+fn resolve_mask(root: &Path, rule: &MaskRule, image: &str) -> Result<PathBuf, DataError> {
+    let candidates = rule.candidates(root, image);
     candidates
         .iter()
         .find(|c| c.is_file())

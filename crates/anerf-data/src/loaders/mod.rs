@@ -5,6 +5,7 @@
 mod annots;
 pub(crate) mod arrays;
 pub mod check;
+pub mod easymocap;
 mod image_files;
 mod lbs;
 mod poses;
@@ -21,17 +22,23 @@ pub use poses::{pose_files, read_pose_file};
 
 use self::annots::{FramePaths, RawCamera};
 use self::check::Checker;
-use self::image_files::Inside;
+use self::image_files::{Inside, MaskRule};
 use crate::error::DataError;
 use crate::formats;
 use crate::subject::{DatasetKind, FrameRecord, PosedVertices, Subject};
 
 /// What a loader needs besides the dataset folder.
 #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+#[serde(default)]
 pub struct LoadOptions {
-    /// A body-model file (SMPL `.npz`, or `.pkl` read by the restricted unpickler) supplying skinning
-    /// weights and faces when `lbs/` has no `weights.npy`/`faces.npy`.
+    /// A body-model file (SMPL-family `.npz`, or `.pkl` read by the restricted unpickler): the body of an
+    /// EasyMocap capture, or the skinning weights and faces of a ZJU folder whose `lbs/` has no
+    /// `weights.npy`/`faces.npy`.
     pub body_model: Option<PathBuf>,
+    /// EasyMocap: the id of the person whose fits to use (default: the only person of the first fit).
+    pub person: Option<i64>,
+    /// EasyMocap: the mask folder inside the capture (default: `mask/`, else `mask-schp/`).
+    pub masks: Option<String>,
 }
 
 /// Reads a ZJU-MoCap sequence folder (`…/CoreView_313`).
@@ -51,8 +58,12 @@ pub fn load(root: &Path, kind: DatasetKind, options: &LoadOptions) -> Result<Sub
     Ok(subject.expect("fail-fast reading returns a subject or an error"))
 }
 
-/// Guesses the layout: H36M folders are `S<n>/<action>` or live under a folder named `h36m`.
+/// Guesses the layout: an EasyMocap capture has `intri.yml` and `extri.yml`; H36M folders are
+/// `S<n>/<action>` or live under a folder named `h36m`.
 pub fn detect_kind(root: &Path) -> DatasetKind {
+    if easymocap::is_capture(root) {
+        return DatasetKind::EasyMocap;
+    }
     let lower = root.to_string_lossy().to_lowercase();
     let parent_is_subject = root
         .parent()
@@ -91,6 +102,9 @@ pub(crate) fn read(
         }))?;
         return Ok(None);
     }
+    if kind == DatasetKind::EasyMocap {
+        return easymocap::read(root, options, ck);
+    }
     let body = lbs::read_body(root, options.body_model.as_deref(), ck)?;
     let annots_path = root.join("annots.npy");
     let Some(annots) = ck.check(formats::read_npy_object(&annots_path))? else {
@@ -113,7 +127,7 @@ pub(crate) fn read(
             sizes = Some(found);
         }
     }
-    let masks = image_files::resolve_masks(root, &inside, kind, &ims, ck)?;
+    let masks = image_files::resolve_masks(root, &inside, &MaskRule::of(kind), &ims, ck)?;
     if ck.whole_files() {
         image_files::check_masks(&inside, &masks, sizes.as_deref().unwrap_or(&[]), ck)?;
     }
@@ -140,13 +154,9 @@ pub(crate) fn read(
         } else if ck.whole_files() {
             ck.check(read_posed_vertices(&vpath, num_vertices))?;
         }
-        let images: Option<Vec<PathBuf>> = paths
-            .iter()
-            .flatten()
-            .map(|p| p.as_ref().map(|p| root.join(p)))
-            .collect();
-        let masks: Option<Vec<PathBuf>> = masks.iter().flatten().cloned().collect();
-        if let (Some(pose), Some(images), Some(masks)) = (pose, images, masks) {
+        if let (Some(pose), Some((images, masks))) =
+            (pose, image_files::frame_files(root, paths, masks))
+        {
             frames.push(FrameRecord {
                 id: FrameId(f),
                 file_index,

@@ -13,6 +13,7 @@ use std::path::Path;
 
 use glam::DVec3;
 
+pub(crate) use forward::rodrigues;
 pub use forward::{PosedSmpl, SmplParams};
 
 use crate::error::DataError;

@@ -21,8 +21,8 @@ use super::motion::{angles_to_axis_angle, clip_angles, global_rotation, heading,
 use super::raster::{render, RenderedView, Scene};
 use super::rng::SplitMix64;
 use super::{Splits, SynthError, SyntheticSpec, SyntheticSummary, Timings};
-use crate::formats::{write_npy, write_object_npy, ArrayData, NdArray, PyValue};
 use crate::subject::{BodyModel, DatasetKind, FrameRecord, PosedVertices, Subject};
+use crate::zju_layout;
 
 /// Writes the subject of `spec` into the new folder `out_dir`. Everything goes into a temporary sibling
 /// folder first, renamed into place at the end, so `out_dir` either holds a complete subject or does not
@@ -316,153 +316,44 @@ fn write_encoded(
     std::fs::write(path, bytes).map_err(SynthError::io(path))
 }
 
-fn f32_array(
-    shape: Vec<usize>,
-    values: impl IntoIterator<Item = f32>,
-) -> Result<NdArray, SynthError> {
-    Ok(NdArray::new(
-        shape,
-        ArrayData::F32(values.into_iter().collect()),
-    )?)
-}
-
-fn f64_value(
-    shape: Vec<usize>,
-    values: impl IntoIterator<Item = f32>,
-) -> Result<PyValue, SynthError> {
-    let data = ArrayData::F64(values.into_iter().map(f64::from).collect());
-    Ok(PyValue::Array(NdArray::new(shape, data)?))
-}
-
-fn vec3s(v: &[Vec3]) -> impl Iterator<Item = f32> + '_ {
-    v.iter().flat_map(|p| p.to_array())
-}
-
-/// Row-major 3×3 entries of a glam (column-major) matrix.
-fn rows(m: glam::Mat3) -> [f32; 9] {
-    m.transpose().to_cols_array()
-}
-
-/// `annots.npy`, `new_params/`, `new_vertices/` and `lbs/`, with the dtypes and shapes of the real data:
-/// float64 calibration (`T` in millimetres), float64 parameters, float32 vertices and weights, int64
-/// faces and parents (root = the uint32 sentinel 4294967295, as SMPL's `kintree_table`).
+/// `annots.npy`, `new_params/`, `new_vertices/` and `lbs/` in the authors' layout ([`crate::zju_layout`]);
+/// the procedural body has no shape coefficients (ten zeros, as SMPL's mean shape).
 fn write_arrays(
     dir: &Path,
     body: &Body,
     cameras: &[Camera],
     frames: &[PosedFrame],
 ) -> Result<(), SynthError> {
-    let cams = |f: &dyn Fn(&Camera) -> Result<PyValue, SynthError>| -> Result<PyValue, SynthError> {
-        Ok(PyValue::List(
-            cameras.iter().map(f).collect::<Result<_, _>>()?,
-        ))
-    };
-    let annots = PyValue::dict([
-        (
-            "cams",
-            PyValue::dict([
-                ("K", cams(&|c| f64_value(vec![3, 3], rows(c.intrinsics)))?),
-                ("D", cams(&|c| f64_value(vec![5, 1], c.distortion.0))?),
-                ("R", cams(&|c| f64_value(vec![3, 3], rows(c.rotation)))?),
-                (
-                    "T",
-                    cams(&|c| {
-                        let mm = ArrayData::F64(
-                            c.translation
-                                .to_array()
-                                .iter()
-                                .map(|&t| f64::from(t) * 1000.0)
-                                .collect(),
-                        );
-                        Ok(PyValue::Array(NdArray::new(vec![3, 1], mm)?))
-                    })?,
-                ),
-            ]),
-        ),
-        (
-            "ims",
-            PyValue::List(
-                (0..frames.len())
-                    .map(|f| {
-                        let paths = (0..cameras.len())
-                            .map(|v| PyValue::Str(image_path(v, f)))
-                            .collect();
-                        PyValue::dict([("ims", PyValue::List(paths))])
-                    })
-                    .collect(),
-            ),
-        ),
-    ]);
-    write_object_npy(&dir.join("annots.npy"), &annots)?;
-
-    for sub in ["new_params", "new_vertices", "lbs"] {
-        let d = dir.join(sub);
-        std::fs::create_dir_all(&d).map_err(SynthError::io(&d))?;
-    }
+    let images: Vec<Vec<String>> = (0..frames.len())
+        .map(|f| (0..cameras.len()).map(|v| image_path(v, f)).collect())
+        .collect();
+    zju_layout::write_annots(&dir.join("annots.npy"), cameras, &images)?;
     frames
         .par_iter()
         .enumerate()
         .map(|(i, frame)| {
-            let params = PyValue::dict([
-                (
-                    "poses",
-                    f64_value(vec![1, 72], vec3s(&frame.pose.joint_rotations))?,
-                ),
-                (
-                    "Rh",
-                    f64_value(vec![1, 3], frame.pose.global.rh.to_array())?,
-                ),
-                (
-                    "Th",
-                    f64_value(vec![1, 3], frame.pose.global.th.to_array())?,
-                ),
-                ("shapes", f64_value(vec![1, 10], [0.0; 10])?),
-            ]);
-            write_object_npy(&dir.join(format!("new_params/{i}.npy")), &params)?;
-            let verts = f32_array(vec![frame.vertices.len(), 3], vec3s(&frame.vertices))?;
-            write_npy(&dir.join(format!("new_vertices/{i}.npy")), &verts)?;
-            Ok(())
+            let poses: Vec<f64> = frame
+                .pose
+                .joint_rotations
+                .iter()
+                .flat_map(|r| r.to_array())
+                .map(f64::from)
+                .collect();
+            let params = zju_layout::FrameParams {
+                poses: &poses,
+                rh: frame.pose.global.rh.to_array().map(f64::from),
+                th: frame.pose.global.th.to_array().map(f64::from),
+                shapes: &[0.0; 10],
+            };
+            zju_layout::write_frame(dir, i, &params, &frame.vertices)
         })
-        .collect::<Result<(), SynthError>>()?;
-
-    let lbs = dir.join("lbs");
-    let joints = body.skeleton.rest_joints();
-    write_npy(
-        &lbs.join("joints.npy"),
-        &f32_array(vec![joints.len(), 3], vec3s(joints))?,
-    )?;
-    let parents = body
-        .skeleton
-        .parents()
-        .iter()
-        .map(|p| p.map_or(i64::from(u32::MAX), |p| p as i64))
-        .collect();
-    write_npy(
-        &lbs.join("parents.npy"),
-        &NdArray::new(vec![joints.len()], ArrayData::I64(parents))?,
-    )?;
-    let verts = &body.mesh.vertices;
-    write_npy(
-        &lbs.join("tvertices.npy"),
-        &f32_array(vec![verts.len(), 3], vec3s(verts))?,
-    )?;
-    let w = &body.weights;
-    write_npy(
-        &lbs.join("weights.npy"),
-        &f32_array(
-            vec![w.num_vertices(), w.num_joints()],
-            w.as_slice().iter().copied(),
-        )?,
-    )?;
-    let faces = body
-        .mesh
-        .faces
-        .iter()
-        .flat_map(|f| f.map(i64::from))
-        .collect();
-    write_npy(
-        &lbs.join("faces.npy"),
-        &NdArray::new(vec![body.mesh.faces.len(), 3], ArrayData::I64(faces))?,
+        .collect::<Result<(), _>>()?;
+    zju_layout::write_lbs(
+        &dir.join("lbs"),
+        &body.skeleton,
+        &body.mesh.vertices,
+        &body.weights,
+        &body.mesh.faces,
     )?;
     Ok(())
 }

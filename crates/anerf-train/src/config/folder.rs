@@ -3,7 +3,7 @@
 use std::path::Path;
 
 use anerf_data::prepare::ImageScale;
-use anerf_data::DatasetKind;
+use anerf_data::LoadOptions;
 use anyhow::{Context, Result};
 use serde::Serialize;
 use toml::Table;
@@ -26,6 +26,12 @@ struct FolderDataset {
     ratio: ImageScale,
     train_views: Vec<usize>,
     iccv: FrameSplit,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    body_model: Option<String>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    person: Option<i64>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    masks: Option<String>,
 }
 
 #[derive(Serialize)]
@@ -33,13 +39,15 @@ struct FolderModel {
     preset: &'static str,
 }
 
-/// The defaults with the folder's values over them, for [`super::assemble`] with the command's flags.
-pub fn folder_table(data: &Path) -> Result<Table> {
+/// The defaults with the folder's values over them, for [`super::assemble`] with the command's flags;
+/// `load` (body model, person, masks) is what reading the folder takes and goes into the config.
+pub fn folder_table(data: &Path, load: &LoadOptions) -> Result<Table> {
     let kind = anerf_data::loaders::detect_kind(data);
-    let subject = anerf_data::load(data, kind, &Default::default()).with_context(|| {
+    let subject = anerf_data::load(data, kind, load).with_context(|| {
         format!(
-            "reading {} (expected a subject folder in the ZJU-MoCap layout)",
-            data.display()
+            "reading {} as {:?} (expected a subject folder in the ZJU-MoCap layout or an EasyMocap capture)",
+            data.display(),
+            DatasetFormat::of(kind)
         )
     })?;
     let cameras = subject.cameras.len();
@@ -88,14 +96,14 @@ pub fn folder_table(data: &Path) -> Result<Table> {
     let folder = FolderConfig {
         name,
         dataset: FolderDataset {
-            format: match kind {
-                DatasetKind::H36m => DatasetFormat::H36m,
-                _ => DatasetFormat::ZjuMocap,
-            },
+            format: DatasetFormat::of(kind),
             root: data.display().to_string(),
             ratio,
             train_views,
             iccv,
+            body_model: load.body_model.as_ref().map(|p| p.display().to_string()),
+            person: load.person,
+            masks: load.masks.clone(),
         },
         model: FolderModel { preset: "cpu" },
     };

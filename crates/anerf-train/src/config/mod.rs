@@ -52,6 +52,9 @@ pub enum DatasetFormat {
     ZjuMocap,
     /// The processed Human3.6M layout of the authors.
     H36m,
+    /// An EasyMocap capture folder (`intri.yml`, `extri.yml`, images, masks, SMPL fits); needs
+    /// `dataset.body_model`.
+    Easymocap,
 }
 
 impl DatasetFormat {
@@ -60,6 +63,18 @@ impl DatasetFormat {
         match self {
             DatasetFormat::ZjuMocap => anerf_data::DatasetKind::ZjuMocap,
             DatasetFormat::H36m => anerf_data::DatasetKind::H36m,
+            DatasetFormat::Easymocap => anerf_data::DatasetKind::EasyMocap,
+        }
+    }
+
+    /// The config's name for a layout the loaders detected (the synthetic layout is ZJU-MoCap's).
+    pub fn of(kind: anerf_data::DatasetKind) -> Self {
+        match kind {
+            anerf_data::DatasetKind::H36m => DatasetFormat::H36m,
+            anerf_data::DatasetKind::EasyMocap => DatasetFormat::Easymocap,
+            anerf_data::DatasetKind::ZjuMocap | anerf_data::DatasetKind::Synthetic => {
+                DatasetFormat::ZjuMocap
+            }
         }
     }
 }
@@ -130,9 +145,16 @@ pub struct DatasetConfig {
     pub frame_interval: usize,
     #[serde(default)]
     pub volumes: VolumeSource,
-    /// A body-model file (SMPL `.npz` or `.pkl`) when `lbs/` has no weights and faces.
+    /// A body-model file (SMPL-family `.npz` or `.pkl`): the body of an EasyMocap capture, or the weights
+    /// and faces of a ZJU folder whose `lbs/` has none.
     #[serde(default)]
     pub body_model: Option<PathBuf>,
+    /// EasyMocap: the id of the person to train on (default: the only person of the fits).
+    #[serde(default)]
+    pub person: Option<i64>,
+    /// EasyMocap: the mask folder inside the capture (default `mask/`, else `mask-schp/`).
+    #[serde(default)]
+    pub masks: Option<String>,
     /// Where `anerf prepare` writes its cache.
     #[serde(default = "default_cache")]
     pub cache: PathBuf,
@@ -147,6 +169,15 @@ fn default_cache() -> PathBuf {
 }
 
 impl DatasetConfig {
+    /// What the loader needs besides the folder.
+    pub fn load_options(&self) -> anerf_data::LoadOptions {
+        anerf_data::LoadOptions {
+            body_model: self.body_model.clone(),
+            person: self.person,
+            masks: self.masks.clone(),
+        }
+    }
+
     /// Resolves `root`, `cache` and `body_model` against the working directory, as written into a run's
     /// config, so that the run can be evaluated from any folder.
     pub fn make_paths_absolute(&mut self) -> Result<(), ConfigError> {

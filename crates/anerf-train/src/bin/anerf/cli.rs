@@ -1,6 +1,7 @@
 //! The `anerf` command line: the subcommands, the options they share, and how errors and Ctrl-C reach
 //! the user.
 
+use std::path::PathBuf;
 use std::sync::atomic::AtomicBool;
 use std::sync::Arc;
 
@@ -66,6 +67,31 @@ impl Common {
             device: self.device,
             set: self.overrides.clone(),
             progress: !self.quiet,
+        }
+    }
+}
+
+/// What reading a dataset folder without a config needs besides the folder (`train --data`, `info`).
+#[derive(Debug, Clone, Default, Args)]
+pub struct CaptureArgs {
+    /// SMPL-family body-model file (.npz, or .pkl read without running code): the body of an EasyMocap
+    /// capture, or weights and faces for a ZJU folder whose lbs/ lacks them.
+    #[arg(long)]
+    pub body_model: Option<PathBuf>,
+    /// EasyMocap: the id of the person whose fits to use (default: the only person).
+    #[arg(long)]
+    pub person: Option<i64>,
+    /// EasyMocap: the mask folder inside the capture (default: mask/, else mask-schp/).
+    #[arg(long)]
+    pub masks: Option<String>,
+}
+
+impl CaptureArgs {
+    pub fn load_options(&self) -> anerf_data::LoadOptions {
+        anerf_data::LoadOptions {
+            body_model: self.body_model.clone(),
+            person: self.person,
+            masks: self.masks.clone(),
         }
     }
 }

@@ -6,10 +6,14 @@ use anerf_train::config;
 use anyhow::{bail, Result};
 use clap::Args;
 
+use crate::cli::CaptureArgs;
+
 #[derive(Debug, Args)]
 pub struct InfoArgs {
     /// A dataset folder or an experiment config.
     pub path: PathBuf,
+    #[command(flatten)]
+    pub capture: CaptureArgs,
 }
 
 /// Prints the report; false when a problem in it is fatal.
@@ -24,9 +28,7 @@ pub fn run(args: &InfoArgs) -> Result<bool> {
                 path.display()
             );
         }
-        let load = anerf_data::LoadOptions {
-            body_model: d.body_model,
-        };
+        let load = d.load_options();
         (
             d.root,
             anerf_data::InspectOptions {
@@ -40,7 +42,11 @@ pub fn run(args: &InfoArgs) -> Result<bool> {
             path.display()
         );
     } else {
-        (path.to_path_buf(), Default::default())
+        let options = anerf_data::InspectOptions {
+            kind: None,
+            load: args.capture.load_options(),
+        };
+        (path.to_path_buf(), options)
     };
     let report = anerf_data::inspect(&root, &options);
     println!("{report}");

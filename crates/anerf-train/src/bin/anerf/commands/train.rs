@@ -9,15 +9,17 @@ use anerf_train::training::StageOutcome;
 use anyhow::{bail, Result};
 use clap::Args;
 
-use crate::cli::{interrupt_flag, Common, StartArgs};
+use crate::cli::{interrupt_flag, CaptureArgs, Common, StartArgs};
 
 #[derive(Debug, Args)]
 pub struct TrainArgs {
     /// Experiment config; or use `--data` to train on a folder without one.
     pub config: Option<PathBuf>,
-    /// A subject folder in the ZJU-MoCap layout (instead of a config).
+    /// A subject folder (ZJU-MoCap layout, or an EasyMocap capture with --body-model) instead of a config.
     #[arg(long, conflicts_with = "config")]
     pub data: Option<PathBuf>,
+    #[command(flatten)]
+    pub capture: CaptureArgs,
     /// Training cameras, e.g. 0,2,4,6 (default: four evenly spaced cameras).
     #[arg(long, value_delimiter = ',')]
     pub train_views: Option<Vec<usize>>,
@@ -59,9 +61,17 @@ impl TrainArgs {
 pub fn config(args: &TrainArgs) -> Result<ExperimentConfig> {
     let set = &args.common.overrides;
     match (&args.config, &args.data) {
-        (Some(path), None) => super::load_config(path, &args.settings(), set),
+        (Some(path), None) => {
+            if args.capture.load_options() != anerf_data::LoadOptions::default() {
+                bail!(
+                    "--body-model, --person and --masks go with --data; with a config, set \
+                     dataset.body_model, dataset.person and dataset.masks in it (or with --set)"
+                );
+            }
+            super::load_config(path, &args.settings(), set)
+        }
         (None, Some(data)) => Ok(config::assemble(
-            config::folder_table(data)?,
+            config::folder_table(data, &args.capture.load_options())?,
             &args.settings(),
             set,
         )?),
