@@ -2,15 +2,21 @@
 //! dtypes and shapes of the released data, so that their Python code reads it as it reads ZJU-MoCap:
 //! float64 calibration (`T` in millimetres, `D` as 5×1), float64 parameters, float32 vertices and weights,
 //! int64 faces and parents (root = the uint32 sentinel 4294967295, as SMPL's `kintree_table`). Used by the
-//! synthetic subjects and by `anerf import`.
+//! synthetic subjects and by `anerf import` ([`write_subject`]: any loaded subject, e.g. an EasyMocap
+//! capture, rewritten in this layout).
 
-use std::path::Path;
+use std::collections::HashSet;
+use std::io;
+use std::path::{Path, PathBuf};
 
-use anerf_core::geometry::{Camera, Skeleton};
+use anerf_core::geometry::{forward_lbs_point, Camera, CanonicalPose, Skeleton};
 use glam::Vec3;
+use rayon::prelude::*;
 
+use crate::atomic::{self, WriteError};
+use crate::error::DataError;
 use crate::formats::{write_npy, write_object_npy, ArrayData, FormatWriteError, NdArray, PyValue};
-use crate::subject::SkinningWeights;
+use crate::subject::{PosedVertices, SkinningWeights, Subject};
 
 /// One frame's fitted parameters as `new_params/{i}.npy` holds them (axis-angle `poses` of the driven
 /// joints, `Rh` axis-angle, `Th` metres, the shape coefficients).
@@ -151,4 +157,235 @@ pub fn write_lbs(
 /// A `V × 3` float32 array of points (metres), e.g. `lbs/bigpose_vertices.npy`.
 pub fn write_points(path: &Path, points: &[Vec3]) -> Result<(), FormatWriteError> {
     write_npy(path, &f32_points(points)?)
+}
+
+/// Why a subject could not be written in the ZJU-MoCap layout.
+#[derive(Debug, thiserror::Error)]
+pub enum LayoutError {
+    #[error("{} already exists (pass --overwrite to replace it)", .0.display())]
+    Exists(PathBuf),
+    #[error("the output folder {} lies inside the dataset {} it is written from", out.display(), root.display())]
+    InsideSource { out: PathBuf, root: PathBuf },
+    #[error("frames {first} and {second} share the file index {index}: their files would collide")]
+    SharedIndex {
+        index: usize,
+        first: usize,
+        second: usize,
+    },
+    #[error(transparent)]
+    Data(#[from] DataError),
+    #[error(transparent)]
+    Format(#[from] FormatWriteError),
+    #[error(transparent)]
+    Write(#[from] WriteError),
+    #[error("cannot {what} {}: {source}", path.display())]
+    Io {
+        what: &'static str,
+        path: PathBuf,
+        #[source]
+        source: io::Error,
+    },
+}
+
+fn io_error<'a>(what: &'static str, path: &'a Path) -> impl Fn(io::Error) -> LayoutError + 'a {
+    move |source| LayoutError::Io {
+        what,
+        path: path.to_path_buf(),
+        source,
+    }
+}
+
+/// Each camera's folder name: the folder its first image lies in when those names are distinct (EasyMocap's
+/// `images/<cam>/`, ZJU's `Camera_B1/`), else `Camera_<n>` counted from 1.
+fn camera_folders(subject: &Subject) -> Vec<String> {
+    let from_images: Option<Vec<String>> = subject.frames.first().and_then(|f| {
+        f.images
+            .iter()
+            .map(|p| {
+                p.parent()
+                    .and_then(Path::file_name)
+                    .map(|n| n.to_string_lossy().into_owned())
+            })
+            .collect()
+    });
+    match from_images {
+        Some(names)
+            if names.iter().collect::<HashSet<_>>().len() == names.len()
+                && names.iter().all(|n| !n.starts_with('.') && n != "mask") =>
+        {
+            names
+        }
+        _ => (1..=subject.cameras.len())
+            .map(|c| format!("Camera_{c}"))
+            .collect(),
+    }
+}
+
+/// Writes `subject` as a new ZJU-MoCap folder `out`: images copied to `<cam>/<index:06>.<ext>`, masks to
+/// `mask/<cam>/<index:06>.png`, `annots.npy`, `new_params/` (poses of the skeleton's joints, `Rh`, `Th`,
+/// and the fit's betas, or ten zeros), `new_vertices/` (posed with pose correctives for fitted bodies) and
+/// `lbs/` (with `bigpose_vertices.npy`). Everything is written into a sibling folder that is renamed to
+/// `out` at the end, so `out` is never half-written; an existing `out` is replaced only with `overwrite`.
+pub fn write_subject(subject: &Subject, out: &Path, overwrite: bool) -> Result<(), LayoutError> {
+    if out.exists() && !overwrite {
+        return Err(LayoutError::Exists(out.to_path_buf()));
+    }
+    check_outside(out, &subject.root)?;
+    let mut seen = std::collections::HashMap::new();
+    for (f, frame) in subject.frames.iter().enumerate() {
+        if let Some(first) = seen.insert(frame.file_index, f) {
+            return Err(LayoutError::SharedIndex {
+                index: frame.file_index,
+                first,
+                second: f,
+            });
+        }
+    }
+    let staging = atomic::temp_dir_beside(out)?;
+    write_into(subject, staging.path())?;
+    if out.exists() {
+        // Only once the new folder is complete: the old one goes, then the new one takes its name.
+        std::fs::remove_dir_all(out).map_err(io_error("remove", out))?;
+    }
+    let staged = staging.keep();
+    std::fs::rename(&staged, out).map_err(|e| {
+        let _ = std::fs::remove_dir_all(&staged);
+        io_error("rename the finished folder to", out)(e)
+    })
+}
+
+/// Refuses an output folder at or under the dataset folder (it would be read while written, and `overwrite`
+/// could delete the source).
+fn check_outside(out: &Path, root: &Path) -> Result<(), LayoutError> {
+    let absolute = |p: &Path| {
+        std::path::absolute(p)
+            .map_err(io_error("resolve", p))
+            .map(|a| a.canonicalize().unwrap_or(a))
+    };
+    // The nearest existing ancestor of `out`, resolved through links, with the rest appended.
+    let mut existing = absolute(out)?;
+    let mut rest = Vec::new();
+    while !existing.exists() {
+        match (
+            existing.file_name().map(ToOwned::to_owned),
+            existing.parent(),
+        ) {
+            (Some(name), Some(parent)) => {
+                rest.push(name);
+                existing = parent.to_path_buf();
+            }
+            _ => break,
+        }
+    }
+    let mut resolved = existing.canonicalize().unwrap_or(existing);
+    resolved.extend(rest.iter().rev());
+    let root = absolute(root)?;
+    if resolved.starts_with(&root) {
+        return Err(LayoutError::InsideSource {
+            out: out.to_path_buf(),
+            root,
+        });
+    }
+    Ok(())
+}
+
+fn write_into(subject: &Subject, dir: &Path) -> Result<(), LayoutError> {
+    let folders = camera_folders(subject);
+    let body = &subject.body;
+    let num_joints = body.skeleton.num_joints();
+    let num_vertices = body.canonical_vertices.len();
+    let images: Vec<Vec<String>> = subject
+        .frames
+        .iter()
+        .map(|frame| {
+            frame
+                .images
+                .iter()
+                .zip(&folders)
+                .map(|(image, cam)| {
+                    let ext = image
+                        .extension()
+                        .map_or_else(|| "jpg".into(), |e| e.to_string_lossy().to_lowercase());
+                    format!("{cam}/{:06}.{ext}", frame.file_index)
+                })
+                .collect()
+        })
+        .collect();
+    for cam in &folders {
+        for d in [dir.join(cam), dir.join("mask").join(cam)] {
+            std::fs::create_dir_all(&d).map_err(io_error("create", &d))?;
+        }
+    }
+    subject.frames.par_iter().zip(&images).try_for_each(
+        |(frame, names)| -> Result<(), LayoutError> {
+            for ((image, mask), (name, cam)) in frame
+                .images
+                .iter()
+                .zip(&frame.masks)
+                .zip(names.iter().zip(&folders))
+            {
+                std::fs::copy(image, dir.join(name)).map_err(io_error("copy", image))?;
+                let to = dir
+                    .join("mask")
+                    .join(cam)
+                    .join(format!("{:06}.png", frame.file_index));
+                std::fs::copy(mask, to).map_err(io_error("copy", mask))?;
+            }
+            let mut poses: Vec<f64> = frame
+                .pose
+                .joint_rotations
+                .iter()
+                .take(num_joints)
+                .flat_map(|r| r.to_array())
+                .map(f64::from)
+                .collect();
+            poses.resize(3 * num_joints, 0.0);
+            let shapes = match &frame.vertices {
+                PosedVertices::Fitted(fit) => fit.params.betas.clone(),
+                PosedVertices::File(_) => vec![0.0; 10],
+            };
+            let params = FrameParams {
+                poses: &poses,
+                rh: frame.pose.global.rh.to_array().map(f64::from),
+                th: frame.pose.global.th.to_array().map(f64::from),
+                shapes: &shapes,
+            };
+            let vertices = frame.vertices.read(Some(num_vertices))?;
+            write_frame(dir, frame.file_index, &params, &vertices)?;
+            Ok(())
+        },
+    )?;
+    write_annots(&dir.join("annots.npy"), &subject.cameras, &images)?;
+    let lbs = dir.join("lbs");
+    write_lbs(
+        &lbs,
+        &body.skeleton,
+        &body.canonical_vertices,
+        &body.weights,
+        &body.faces,
+    )?;
+    write_points(
+        &lbs.join("bigpose_vertices.npy"),
+        &big_pose_vertices(subject)?,
+    )?;
+    Ok(())
+}
+
+/// The canonical vertices skinned into the skeleton's big pose (metres, canonical space).
+fn big_pose_vertices(subject: &Subject) -> Result<Vec<Vec3>, LayoutError> {
+    let body = &subject.body;
+    let invalid = |e: anerf_core::GeometryError| {
+        DataError::invalid(&subject.root, format!("the body's big pose: {e}"))
+    };
+    let transforms = body
+        .skeleton
+        .bone_transforms(&body.skeleton.big_pose(), CanonicalPose::TPose)
+        .map_err(invalid)?;
+    body.canonical_vertices
+        .iter()
+        .enumerate()
+        .map(|(v, &x)| {
+            forward_lbs_point(x, body.weights.row(v), &transforms).map_err(|e| invalid(e).into())
+        })
+        .collect()
 }

@@ -2,12 +2,17 @@
 //! their ZJU-layout twin written from the same fits by numpy; OpenCV's YAML reads as cv2 reads it; every
 //! kind of bad input is named, and `inspect` lists all of a folder's problems at once.
 
+mod common;
+
 use std::path::Path;
 
 use anerf_data::formats::opencv_yaml::FileStorage;
 use anerf_data::loaders::{detect_kind, load};
+use anerf_data::zju_layout::{write_subject, LayoutError};
 use anerf_data::{inspect, DatasetKind, InspectOptions, LoadOptions, Subject};
 use anerf_testing::{assert_close, fixture, floats, json, Tolerance};
+use common::{array, f64s, flat, ordered, relative};
+use serde_json::json;
 
 fn options() -> LoadOptions {
     LoadOptions {
@@ -33,6 +38,11 @@ fn a_capture_reads_as_the_zju_layout_subject_made_from_the_same_fits() {
         anerf_data::load_zju_mocap(&fixture("easymocap/zju"), &LoadOptions::default()).unwrap();
     assert_eq!(ours.kind, DatasetKind::EasyMocap);
     assert_eq!((ours.cameras.len(), ours.frames.len()), (3, 4));
+    assert_same_subject(&ours, &zju);
+}
+
+/// Same cameras (1e-6), body, poses, image and mask bytes, and posed vertices (1e-5 m).
+fn assert_same_subject(ours: &Subject, zju: &Subject) {
     assert_eq!(ours.cameras.len(), zju.cameras.len());
     for (c, (a, b)) in ours.cameras.iter().zip(&zju.cameras).enumerate() {
         assert_eq!((a.width, a.height), (b.width, b.height));
@@ -124,6 +134,127 @@ fn opencv_yaml_reads_as_cv2_reads_it() {
     }
     let names: Vec<String> = serde_json::from_value(expected["names"].clone()).unwrap();
     assert_eq!(fs.strings("names").unwrap().unwrap(), names);
+}
+
+/// What numpy must read from the imported folder `root`, stated from the capture it came from.
+fn import_manifest(capture: &Subject, imported: &Subject) -> serde_json::Value {
+    let root = &imported.root;
+    let mut files = vec![common::annots_entry(imported)];
+    let k = capture.body.skeleton.num_joints();
+    for (frame, mine) in imported.frames.iter().zip(&capture.frames) {
+        let i = frame.file_index;
+        let anerf_data::PosedVertices::Fitted(fit) = &mine.vertices else {
+            panic!("a capture's vertices come from its fits")
+        };
+        files.push(json!({
+            "path": format!("new_params/{i}.npy"),
+            "kind": "object",
+            "expected": ordered(&[
+                ("poses", array("<f8", &[1, 3 * k], f64s(flat(&mine.pose.joint_rotations)))),
+                ("Rh", array("<f8", &[1, 3], f64s(mine.pose.global.rh.to_array()))),
+                ("Th", array("<f8", &[1, 3], f64s(mine.pose.global.th.to_array()))),
+                ("shapes", array("<f8", &[1, fit.params.betas.len()], json!(fit.params.betas))),
+            ])
+        }));
+        let verts = mine.vertices.read(None).unwrap();
+        files.push(json!({"path": format!("new_vertices/{i}.npy"), "kind": "npy", "expected": array("<f4", &[verts.len(), 3], json!(flat(&verts)))}));
+        for (v, (image, mask)) in frame.images.iter().zip(&frame.masks).enumerate() {
+            let (w, h) = (capture.cameras[v].width, capture.cameras[v].height);
+            let foreground = image::open(&mine.masks[v])
+                .unwrap()
+                .to_luma8()
+                .pixels()
+                .filter(|p| p.0[0] > 0)
+                .count();
+            files.push(
+                json!({"path": relative(root, image), "kind": "jpeg", "width": w, "height": h}),
+            );
+            files.push(json!({"path": relative(root, mask), "kind": "png", "width": w, "height": h, "foreground": foreground}));
+        }
+    }
+    files.extend(common::lbs_entries(&capture.body));
+    files.push(json!({"path": "lbs/bigpose_vertices.npy", "kind": "npy", "expected": array("<f4", &[capture.body.canonical_vertices.len(), 3], json!(big_pose(&capture.body)))}));
+    json!({ "files": files })
+}
+
+/// The canonical vertices in the big pose, computed here from the bone transforms: hips abducted ±30°
+/// about z, so every vertex moves by the weighted rotation of its bones about the hip joints.
+fn big_pose(body: &anerf_data::BodyModel) -> Vec<f32> {
+    let transforms = body
+        .skeleton
+        .bone_transforms(
+            &body.skeleton.big_pose(),
+            anerf_core::geometry::CanonicalPose::TPose,
+        )
+        .unwrap();
+    body.canonical_vertices
+        .iter()
+        .enumerate()
+        .flat_map(|(v, &x)| {
+            let m = body
+                .weights
+                .row(v)
+                .iter()
+                .zip(transforms.matrices())
+                .fold(glam::Mat4::ZERO, |acc, (&w, a)| acc + *a * w);
+            m.transform_point3(x).to_array()
+        })
+        .collect()
+}
+
+#[test]
+fn an_imported_capture_reads_back_through_the_zju_loader_and_numpy_reads_every_file() {
+    let ours = capture(&fixture("easymocap/capture"), &options()).unwrap();
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("imported");
+    write_subject(&ours, &out, false).unwrap();
+    let imported = anerf_data::load_zju_mocap(&out, &LoadOptions::default()).unwrap();
+    assert_eq!(imported.frames.len(), ours.frames.len());
+    assert_same_subject(&ours, &imported);
+    common::numpy_check(&out, &import_manifest(&ours, &imported));
+    // Nothing beside the result: the staging folder was renamed, not left behind.
+    let entries: Vec<_> = std::fs::read_dir(dir.path())
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+        .filter(|n| !n.ends_with(".manifest.json"))
+        .collect();
+    assert_eq!(entries, ["imported"]);
+
+    // An existing folder is kept unless overwriting is asked for; then it is replaced whole.
+    let err = write_subject(&ours, &out, false).unwrap_err();
+    assert!(matches!(err, LayoutError::Exists(_)), "{err}");
+    std::fs::write(out.join("stale.txt"), "old run").unwrap();
+    write_subject(&ours, &out, true).unwrap();
+    assert!(!out.join("stale.txt").exists());
+    assert_same_subject(
+        &ours,
+        &anerf_data::load_zju_mocap(&out, &LoadOptions::default()).unwrap(),
+    );
+}
+
+#[test]
+fn an_import_that_fails_leaves_nothing_and_never_writes_into_the_capture() {
+    let dir = tempfile::tempdir().unwrap();
+    let root = dir.path().join("capture");
+    common::copy_tree(&fixture("easymocap/capture"), &root);
+    let subject = capture(&root, &options()).unwrap();
+    let err = write_subject(&subject, &root.join("zju"), false).unwrap_err();
+    assert!(matches!(err, LayoutError::InsideSource { .. }), "{err}");
+    assert!(!root.join("zju").exists());
+
+    // An image gone after loading: the copy fails, naming it, and no output or staging folder remains.
+    let lost = subject.frames[2].images[1].clone();
+    std::fs::remove_file(&lost).unwrap();
+    let out = dir.path().join("imported");
+    let err = write_subject(&subject, &out, false)
+        .unwrap_err()
+        .to_string();
+    assert!(err.contains(&lost.display().to_string()), "{err}");
+    let entries: Vec<_> = std::fs::read_dir(dir.path())
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+        .collect();
+    assert_eq!(entries, ["capture"]);
 }
 
 fn error_of(case: &str, options: &LoadOptions) -> String {

@@ -9,57 +9,15 @@ use anerf_data::synthetic::{
     write_subject, ClothingSpec, Lighting, StudioLights, SynthError, SyntheticSpec,
     SyntheticSummary,
 };
-use glam::{Mat3, Vec3};
+use common::{array, f64s, flat, ordered, relative};
 use serde_json::{json, Value};
-
-fn array(dtype: &str, shape: &[usize], data: Value) -> Value {
-    json!({"__array__": {"dtype": dtype, "shape": shape, "data": data}})
-}
-
-/// A dict whose key order numpy must give back.
-fn ordered(items: &[(&str, Value)]) -> Value {
-    json!({"__dict__": items.iter().map(|(k, v)| json!([k, v])).collect::<Vec<_>>()})
-}
-
-fn f64s(values: impl IntoIterator<Item = f32>) -> Value {
-    json!(values.into_iter().map(f64::from).collect::<Vec<_>>())
-}
-
-fn row_major(m: Mat3) -> Vec<f32> {
-    (0..3)
-        .flat_map(|r| (0..3).map(move |c| m.col(c)[r]))
-        .collect()
-}
-
-fn flat(v: &[Vec3]) -> Vec<f32> {
-    v.iter().flat_map(|p| p.to_array()).collect()
-}
-
-fn relative(root: &Path, path: &Path) -> String {
-    path.strip_prefix(root)
-        .unwrap()
-        .to_string_lossy()
-        .into_owned()
-}
 
 /// What each file of the subject must hold, stated from the summary and the ZJU-MoCap layout.
 fn manifest(s: &SyntheticSummary) -> Value {
     let subject = &s.subject;
     let root = &subject.root;
     let cams = &subject.cameras;
-    let mut files = vec![json!({
-        "path": "annots.npy",
-        "kind": "object",
-        "expected": ordered(&[
-            ("cams", ordered(&[
-                ("K", cams.iter().map(|c| array("<f8", &[3, 3], f64s(row_major(c.intrinsics)))).collect()),
-                ("D", cams.iter().map(|c| array("<f8", &[5, 1], f64s(c.distortion.0))).collect()),
-                ("R", cams.iter().map(|c| array("<f8", &[3, 3], f64s(row_major(c.rotation)))).collect()),
-                ("T", cams.iter().map(|c| array("<f8", &[3, 1], json!(c.translation.to_array().map(|t| f64::from(t) * 1000.0)))).collect()),
-            ])),
-            ("ims", subject.frames.iter().map(|f| json!({"ims": f.images.iter().map(|p| relative(root, p)).collect::<Vec<_>>()})).collect()),
-        ])
-    })];
+    let mut files = vec![common::annots_entry(subject)];
     for (i, frame) in subject.frames.iter().enumerate() {
         assert_eq!(frame.file_index, i);
         files.push(json!({
@@ -82,20 +40,8 @@ fn manifest(s: &SyntheticSummary) -> Value {
             files.push(json!({"path": relative(root, mask), "kind": "png", "width": w, "height": h, "foreground": s.foreground_pixels[i][v]}));
         }
     }
-    let body = &subject.body;
-    let n = body.canonical_vertices.len();
-    let parents: Vec<i64> = body
-        .skeleton
-        .parents()
-        .iter()
-        .map(|p| p.map_or(4294967295, |p| p as i64))
-        .collect();
+    files.extend(common::lbs_entries(&subject.body));
     files.extend([
-        json!({"path": "lbs/joints.npy", "kind": "npy", "expected": array("<f4", &[24, 3], json!(flat(body.skeleton.rest_joints())))}),
-        json!({"path": "lbs/parents.npy", "kind": "npy", "expected": array("<i8", &[24], json!(parents))}),
-        json!({"path": "lbs/tvertices.npy", "kind": "npy", "expected": array("<f4", &[n, 3], json!(flat(&body.canonical_vertices)))}),
-        json!({"path": "lbs/weights.npy", "kind": "npy", "expected": array("<f4", &[n, 24], json!(body.weights.as_slice()))}),
-        json!({"path": "lbs/faces.npy", "kind": "npy", "expected": array("<i8", &[body.faces.len(), 3], json!(body.faces.iter().flatten().collect::<Vec<_>>()))}),
         json!({"path": "splits.json", "kind": "json", "expected": {
             "training_views": s.splits.training_views,
             "test_views": s.splits.test_views,

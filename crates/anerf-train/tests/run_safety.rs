@@ -474,3 +474,40 @@ fn a_run_trained_on_a_relative_folder_evaluates_from_anywhere() {
         "{saved}"
     );
 }
+
+/// `anerf import easymocap`: writes a folder the ZJU-MoCap loader reads, refuses to replace it unless
+/// asked, and a capture without its body model writes nothing.
+#[test]
+fn import_writes_a_zju_folder_once_and_replaces_it_only_when_asked() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("zju");
+    let import = |extra: &[&str]| {
+        anerf()
+            .args(["import", "easymocap"])
+            .arg(anerf_testing::fixture("easymocap/capture"))
+            .arg("--out")
+            .arg(&out)
+            .args(extra)
+            .output()
+            .unwrap()
+    };
+    let body = anerf_testing::fixture("easymocap/body.npz");
+    let body = body.to_str().unwrap();
+    let without_model = import(&[]);
+    assert!(!without_model.status.success());
+    let stderr = String::from_utf8_lossy(&without_model.stderr);
+    assert!(stderr.contains("--body-model"), "{stderr}");
+    assert!(!out.exists());
+
+    assert!(import(&["--body-model", body]).status.success());
+    let subject = anerf_data::load_zju_mocap(&out, &anerf_data::LoadOptions::default()).unwrap();
+    assert_eq!((subject.cameras.len(), subject.frames.len()), (3, 4));
+    let again = import(&["--body-model", body]);
+    assert!(!again.status.success());
+    let stderr = String::from_utf8_lossy(&again.stderr);
+    assert!(stderr.contains("--overwrite"), "{stderr}");
+    assert!(import(&["--body-model", body, "--overwrite"])
+        .status
+        .success());
+    assert!(anerf_data::load_zju_mocap(&out, &anerf_data::LoadOptions::default()).is_ok());
+}

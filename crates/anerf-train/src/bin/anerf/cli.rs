@@ -28,6 +28,8 @@ pub enum Command {
     Synth(commands::synth::SynthArgs),
     /// Validate a dataset folder (or the folder a config names) and summarise it.
     Info(commands::info::InfoArgs),
+    /// Rewrite a capture (EasyMocap) in the ZJU-MoCap layout, for the authors' code and other tools.
+    Import(commands::import::ImportArgs),
     /// Undistort, resize and compute blend-weight volumes into the cache (train does this on demand).
     Prepare(commands::prepare::PrepareArgs),
     /// Stage 1: fit the canonical radiance field and blend-weight fields to the training video.

@@ -48,6 +48,10 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
             }
             false
         }
+        Command::Import(a) => {
+            commands::import::run(&a)?;
+            false
+        }
         Command::Prepare(a) => {
             commands::prepare::run(&a)?;
             false
