@@ -7,6 +7,7 @@ pub mod error;
 pub mod formats;
 pub mod info;
 pub mod loaders;
+pub mod motion;
 pub mod prepare;
 pub mod sampler;
 pub mod smpl;

@@ -86,7 +86,9 @@ fn the_correctives_move_the_body_so_the_comparison_can_tell_them_apart() {
 
 /// The arrays of fixture model `name`, to break one at a time.
 fn arrays(name: &str) -> BTreeMap<String, NdArray> {
-    anerf_data::formats::npz::read_npz(&fixture(&format!("smpl/{name}.npz"))).unwrap()
+    anerf_data::formats::npz::read_npz(&fixture(&format!("smpl/{name}.npz")))
+        .unwrap()
+        .arrays
 }
 
 fn error_of(arrays: &BTreeMap<String, NdArray>) -> String {

@@ -70,6 +70,8 @@ pub enum FormatWriteError {
     HeaderTooLong { shape: Vec<usize>, len: usize },
     #[error("array of shape {shape:?} has {bytes} bytes; a protocol-3 pickle holds at most 4 GiB per buffer")]
     PickledArrayTooLarge { shape: Vec<usize>, bytes: usize },
+    #[error("writing the .npz archive: {0}")]
+    Archive(String),
     #[error(transparent)]
     Io(#[from] crate::atomic::WriteError),
 }

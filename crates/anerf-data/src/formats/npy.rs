@@ -383,8 +383,13 @@ struct Header {
     shape: Vec<usize>,
 }
 
-/// Parses a whole `.npy` file.
-pub fn parse(bytes: &[u8]) -> Result<Npy, NpyError> {
+/// The type of a `.npy` file's elements, from its header alone (the data is not read).
+pub fn peek_descr(bytes: &[u8]) -> Result<Descr, NpyError> {
+    Ok(split_header(bytes)?.0.descr)
+}
+
+/// The parsed header of a `.npy` file and the data after it.
+fn split_header(bytes: &[u8]) -> Result<(Header, &[u8]), NpyError> {
     if bytes.len() < 8 || &bytes[..6] != b"\x93NUMPY" {
         return Err(NpyError::Magic);
     }
@@ -432,7 +437,12 @@ pub fn parse(bytes: &[u8]) -> Result<Npy, NpyError> {
         header: text.trim_end().to_string(),
         reason,
     })?;
-    let body = &bytes[end..];
+    Ok((header, &bytes[end..]))
+}
+
+/// Parses a whole `.npy` file.
+pub fn parse(bytes: &[u8]) -> Result<Npy, NpyError> {
+    let (header, body) = split_header(bytes)?;
     match header.descr {
         Descr::Numeric { dtype, big_endian } => {
             let arr = NdArray::from_bytes(dtype, big_endian, header.shape, header.fortran, body)

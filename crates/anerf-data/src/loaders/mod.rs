@@ -8,7 +8,7 @@ pub mod check;
 pub mod easymocap;
 mod image_files;
 mod lbs;
-mod poses;
+pub(crate) mod poses;
 
 use std::path::{Path, PathBuf};
 

@@ -64,12 +64,26 @@ pub fn pose_files(path: &Path) -> Result<Vec<PathBuf>, DataError> {
             what: "a pose file (params/{i}.npy format) or a folder of them".into(),
         });
     }
-    let mut files: Vec<PathBuf> = std::fs::read_dir(path)
-        .map_err(|e| DataError::io(path, e))?
-        .map(|entry| entry.map(|e| e.path()).map_err(|e| DataError::io(path, e)))
+    let files = numbered_files(path, "npy")?;
+    if files.is_empty() {
+        return Err(DataError::Missing {
+            path: path.to_path_buf(),
+            what: "at least one pose file (*.npy of the params/{i}.npy format) in this folder"
+                .into(),
+        });
+    }
+    Ok(files)
+}
+
+/// The `*.<ext>` files of the folder `dir`, ordered by the number in their names (`2.npy` before `10.npy`;
+/// names without a number after those, by name).
+pub(crate) fn numbered_files(dir: &Path, ext: &str) -> Result<Vec<PathBuf>, DataError> {
+    let mut files: Vec<PathBuf> = std::fs::read_dir(dir)
+        .map_err(|e| DataError::io(dir, e))?
+        .map(|entry| entry.map(|e| e.path()).map_err(|e| DataError::io(dir, e)))
         .collect::<Result<Vec<_>, _>>()?
         .into_iter()
-        .filter(|p| p.is_file() && p.extension().is_some_and(|e| e == "npy"))
+        .filter(|p| p.is_file() && p.extension().is_some_and(|e| e == ext))
         .collect();
     let number = |p: &Path| -> Option<u64> { p.file_stem()?.to_str()?.parse().ok() };
     files.sort_by(|a, b| match (number(a), number(b)) {
@@ -78,13 +92,6 @@ pub fn pose_files(path: &Path) -> Result<Vec<PathBuf>, DataError> {
         (None, Some(_)) => std::cmp::Ordering::Greater,
         (None, None) => a.cmp(b),
     });
-    if files.is_empty() {
-        return Err(DataError::Missing {
-            path: path.to_path_buf(),
-            what: "at least one pose file (*.npy of the params/{i}.npy format) in this folder"
-                .into(),
-        });
-    }
     Ok(files)
 }
 

@@ -4,12 +4,12 @@
 use std::path::Path;
 
 use anerf_core::geometry::BlendWeightVolume;
-use anerf_core::geometry::{forward_lbs_point, Aabb, BoneTransforms, CanonicalPose, Pose};
-use glam::Vec3;
+use anerf_core::geometry::{Aabb, BoneTransforms, CanonicalPose, Pose};
 
 use super::volumes::{compute_volume, NearestMethod};
 use super::PreparedSubject;
 use crate::error::DataError;
+use crate::motion::TargetBody;
 
 /// The subject's body in a new pose: what a [`super::PreparedFrame`] and its cached volume hold for a
 /// dataset frame.
@@ -25,6 +25,15 @@ pub struct PosedBody {
 }
 
 impl PreparedSubject {
+    /// The body motions are retargeted onto: the subject's skeleton and canonical mesh.
+    pub fn target_body(&self) -> TargetBody<'_> {
+        TargetBody {
+            skeleton: &self.skeleton,
+            vertices: &self.canonical.vertices,
+            weights: &self.canonical.weights,
+        }
+    }
+
     /// Poses the canonical body with `pose` (read from `source`, which errors name).
     ///
     /// The posed vertices are the canonical vertices skinned with the body model's weights; the datasets'
@@ -39,16 +48,10 @@ impl PreparedSubject {
             .bone_transforms(pose, CanonicalPose::TPose)
             .map_err(|e| invalid(e.to_string()))?;
         let k = self.skeleton.num_joints();
-        let pose_space: Vec<Vec3> = self
-            .canonical
-            .vertices
-            .iter()
-            .enumerate()
-            .map(|(v, &x)| {
-                forward_lbs_point(x, self.canonical.weights.row(v), &bones)
-                    .map_err(|e| invalid(format!("vertex {v} of {k}-joint body: {e}")))
-            })
-            .collect::<Result<_, _>>()?;
+        let pose_space = self
+            .target_body()
+            .pose_space_vertices(pose)
+            .map_err(|e| invalid(format!("{k}-joint body: {e}")))?;
         let bounds = Aabb::from_points(pose_space.iter().map(|&x| pose.global.pose_to_world(x)))
             .ok_or_else(|| invalid("the body has no vertices".into()))?
             .padded(self.options.box_padding);

@@ -136,7 +136,7 @@ impl SmplModel {
 /// (entries that are not arrays, such as `bs_style`, are left out).
 pub fn read_model_arrays(path: &Path) -> Result<BTreeMap<String, NdArray>, DataError> {
     match path.extension().and_then(|e| e.to_str()).unwrap_or("") {
-        "npz" => formats::npz::read_npz(path),
+        "npz" => Ok(formats::npz::read_npz(path)?.arrays),
         "pkl" => match formats::read_pickle(path)? {
             Value::Dict(entries) => Ok(entries
                 .iter()
