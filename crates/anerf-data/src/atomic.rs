@@ -65,6 +65,19 @@ pub fn temp_dir_beside(path: &Path) -> Result<tempfile::TempDir, WriteError> {
         .map_err(WriteError::at(path))
 }
 
+/// Puts the finished folder `staging` (from [`temp_dir_beside`]) at `dest`: an existing `dest` is removed
+/// only now that its replacement is complete, then `staging` takes its name.
+pub fn replace_dir(staging: tempfile::TempDir, dest: &Path) -> Result<(), WriteError> {
+    if dest.exists() {
+        std::fs::remove_dir_all(dest).map_err(WriteError::at(dest))?;
+    }
+    let staged = staging.keep();
+    std::fs::rename(&staged, dest).map_err(|e| {
+        let _ = std::fs::remove_dir_all(&staged);
+        WriteError::at(dest)(e)
+    })
+}
+
 /// `path`'s folder, created if missing.
 fn parent_dir(path: &Path) -> Result<&Path, WriteError> {
     let dir = path

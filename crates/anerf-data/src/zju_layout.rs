@@ -243,15 +243,7 @@ pub fn write_subject(subject: &Subject, out: &Path, overwrite: bool) -> Result<(
     }
     let staging = atomic::temp_dir_beside(out)?;
     write_into(subject, staging.path())?;
-    if out.exists() {
-        // Only once the new folder is complete: the old one goes, then the new one takes its name.
-        std::fs::remove_dir_all(out).map_err(io_error("remove", out))?;
-    }
-    let staged = staging.keep();
-    std::fs::rename(&staged, out).map_err(|e| {
-        let _ = std::fs::remove_dir_all(&staged);
-        io_error("rename the finished folder to", out)(e)
-    })
+    Ok(atomic::replace_dir(staging, out)?)
 }
 
 /// Refuses an output folder at or under the dataset folder (it would be read while written, and `overwrite`

@@ -251,6 +251,21 @@ impl Checkpoint {
         Ok(Self::candidates(root, stage)?.into_iter().next())
     }
 
+    /// The newest intact stage-1 checkpoint of `run` (model only); an error when it has none.
+    pub fn restore_stage1(
+        run: &crate::run_dir::RunDir,
+        expected: &ModelConfig,
+        device: &Device,
+    ) -> Result<Restored> {
+        Self::restore_newest(&run.checkpoints(), Stage::Train, expected, device, None)?
+            .with_context(|| {
+                format!(
+                    "{} has no stage-1 checkpoint; run `anerf train` first",
+                    run.root.display()
+                )
+            })
+    }
+
     /// Restores the newest intact checkpoint of `stage`: each damaged one is named on stderr with what is
     /// wrong and the next older one is tried. `optimizer` builds the optimiser to load the saved state into
     /// (none: the model alone). `Ok(None)` when the stage has no checkpoint; an error when every one is

@@ -8,7 +8,7 @@ pub mod experiment;
 pub mod jobs;
 pub mod memory;
 pub mod mesh;
-pub mod poses;
+pub mod motion;
 pub mod progress;
 pub mod render;
 pub mod run_dir;

@@ -120,17 +120,20 @@ pub fn mean_up(cameras: &[Camera]) -> glam::Vec3 {
 /// distance and height: the reference camera moved with the world rotated about the axis.
 pub fn orbit(reference: &Camera, center: glam::Vec3, up: glam::Vec3, n: usize) -> Vec<Camera> {
     (0..n)
-        .map(|i| {
-            let q = glam::Mat3::from_axis_angle(up, std::f32::consts::TAU * i as f32 / n as f32);
-            let eye = center + q * (reference.center() - center);
-            let rotation = reference.rotation * q.transpose();
-            Camera {
-                rotation,
-                translation: -(rotation * eye),
-                ..reference.clone()
-            }
-        })
+        .map(|i| orbit_camera(reference, center, up, i as f32 / n as f32))
         .collect()
+}
+
+/// `reference` moved a fraction `turn` of a full circle about the axis `up` through `center`.
+pub fn orbit_camera(reference: &Camera, center: glam::Vec3, up: glam::Vec3, turn: f32) -> Camera {
+    let q = glam::Mat3::from_axis_angle(up, std::f32::consts::TAU * turn);
+    let eye = center + q * (reference.center() - center);
+    let rotation = reference.rotation * q.transpose();
+    Camera {
+        rotation,
+        translation: -(rotation * eye),
+        ..reference.clone()
+    }
 }
 
 #[cfg(test)]

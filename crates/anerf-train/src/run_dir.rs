@@ -55,6 +55,11 @@ impl RunDir {
         self.root.join("metrics.jsonl")
     }
 
+    /// Stored motion fits (`anerf animate --motion`), one folder per motion.
+    pub fn motions(&self) -> PathBuf {
+        self.root.join("motions")
+    }
+
     pub fn renders(&self) -> PathBuf {
         self.root.join("renders")
     }

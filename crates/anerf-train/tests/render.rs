@@ -1,4 +1,4 @@
-//! `anerf render`: orbits, and sequences from pose files (the `params/{i}.npy` format).
+//! `anerf render`: orbits, and motions (any file `Motion::read` reads) fitted once, stored and rendered.
 
 mod common;
 
@@ -9,42 +9,79 @@ use anerf_core::device::cpu_device;
 use anerf_core::geometry::skinning::points_tensor;
 use anerf_core::model::AnimatableNerf;
 use anerf_core::tensor::to_host;
-use anerf_eval::images::read_rgb;
+use anerf_data::formats::npz::write_npz;
+use anerf_data::formats::{ArrayData, NdArray};
+use anerf_eval::images::{read_mask, read_rgb};
+use anerf_eval::report::{read_records_json, EvalSplit};
 use anerf_eval::ImageMetrics;
 use anerf_eval::RgbImageExt;
+use anerf_testing::fixture;
 use anerf_train::checkpoint::Checkpoint;
 use anerf_train::experiment::Experiment;
-use anerf_train::jobs::{self, RenderJob};
-use anerf_train::poses::PoseSequence;
+use anerf_train::jobs::{self, MotionCamera, RenderJob};
+use anerf_train::motion::{MotionClip, MotionRequest, Place};
 use anerf_train::run_start::RunStart;
 use anerf_train::stage::Stage;
 use anerf_train::training::{fit_pose_codes, PoseTarget};
 use common::{quiet, tiny, trained};
-use glam::Vec3;
+use glam::{DQuat, Vec3};
 
-/// Copies the pose files of the tiny subject's novel-pose frames 6..10 into `dir/motion`.
-fn motion(dir: &Path) -> PathBuf {
+/// The tiny subject's novel-pose frames 6..10 written as an AMASS-style SMPL `.npz` (`poses` T × 72 with
+/// the global orientation in `poses[:3]`, `trans` of the standard SMPL root, `mocap_framerate`): the
+/// datasets' `x = R(Rh)(R₀(x' − J₀) + J₀) + Th` is `(R(Rh)R₀)(x' − J₀) + J₀ + trans` with
+/// `trans = R(Rh) J₀ + Th − J₀`.
+fn amass_of_novel_frames(dir: &Path) -> PathBuf {
     let subject = anerf_data::load_zju_mocap(&dir.join("subject"), &Default::default()).unwrap();
-    let out = dir.join("motion");
-    std::fs::create_dir_all(&out).unwrap();
+    let j0 = subject.body.skeleton.rest_joints()[0].as_dvec3();
+    let (mut poses, mut trans) = (Vec::new(), Vec::new());
     for f in 6..10 {
-        let index = subject.frames[f].file_index;
-        let name = format!("{index}.npy");
-        std::fs::copy(dir.join("subject/new_params").join(&name), out.join(name)).unwrap();
+        let pose = &subject.frames[f].pose;
+        let rh = DQuat::from_scaled_axis(pose.global.rh.as_dvec3());
+        let root = rh * DQuat::from_scaled_axis(pose.joint_rotations[0].as_dvec3());
+        poses.extend(root.to_scaled_axis().to_array());
+        for r in &pose.joint_rotations[1..] {
+            poses.extend(r.as_dvec3().to_array());
+        }
+        trans.extend((rh * j0 + pose.global.th.as_dvec3() - j0).to_array());
     }
-    out
+    let array = |shape: Vec<usize>, v: Vec<f64>| NdArray::new(shape, ArrayData::F64(v)).unwrap();
+    let path = dir.join("novel.npz");
+    write_npz(
+        &path,
+        &[
+            ("poses", &array(vec![4, 72], poses)),
+            ("trans", &array(vec![4, 3], trans)),
+            ("mocap_framerate", &array(vec![], vec![30.0])),
+        ],
+    )
+    .unwrap();
+    path
 }
 
-/// With the body model's weights (no residual to fit), the run's own novel poses read back from their pose
-/// files must render as those dataset frames: posing, volumes, boxes, appearance code and camera all agree.
-#[test]
-fn pose_files_render_as_the_dataset_frames_they_came_from() {
-    let dir = tempfile::tempdir().unwrap();
-    let config = tiny(
-        dir.path(),
-        &["model.neural_blend_weights=false", "train.iterations=8"],
-    );
-    let run = trained(&config, dir.path());
+/// The motion job for `path` as recorded, from dataset camera `view`.
+fn motion_job(path: &Path, view: usize) -> RenderJob {
+    RenderJob::Motion {
+        request: MotionRequest {
+            place: Place::Recorded,
+            ..MotionRequest::new(path)
+        },
+        camera: MotionCamera::View(Some(view)),
+        size: None,
+    }
+}
+
+fn pngs(dir: &Path) -> Vec<PathBuf> {
+    let mut v: Vec<PathBuf> = std::fs::read_dir(dir)
+        .unwrap()
+        .map(|e| e.unwrap().path())
+        .collect();
+    v.sort();
+    v
+}
+
+/// The tiny subject trained into `dir/run` with `overrides`, stage 2 included.
+fn animated(dir: &Path, overrides: &[&str]) -> PathBuf {
+    let run = trained(&tiny(dir, overrides), dir);
     jobs::animate(
         &run,
         &quiet(),
@@ -53,30 +90,28 @@ fn pose_files_render_as_the_dataset_frames_they_came_from() {
         &AtomicBool::new(false),
     )
     .unwrap();
-    let motion = motion(dir.path());
+    run
+}
+
+/// With the body model's weights (no residual to fit), the run's own novel poses written as an AMASS file
+/// must render as those dataset frames: reading, the root conversion, posing, volumes, boxes, appearance
+/// code and camera all agree.
+#[test]
+fn an_amass_file_of_the_runs_novel_poses_renders_as_those_dataset_frames() {
+    let dir = tempfile::tempdir().unwrap();
+    let run = animated(
+        dir.path(),
+        &["model.neural_blend_weights=false", "train.iterations=8"],
+    );
     jobs::render(&run, RenderJob::NovelPoses { view: 1 }, &quiet()).unwrap();
-    let gif = jobs::render(
-        &run,
-        RenderJob::PoseFiles {
-            path: motion,
-            view: Some(1),
-        },
-        &quiet(),
-    )
-    .unwrap()
-    .gif;
-    assert!(gif.ends_with("renders/poses_motion_view01.gif"), "{gif:?}");
-    let frames = |name: &str| -> Vec<PathBuf> {
-        let mut v: Vec<PathBuf> = std::fs::read_dir(run.join("renders").join(name))
-            .unwrap()
-            .map(|e| e.unwrap().path())
-            .collect();
-        v.sort();
-        v
-    };
-    let (dataset, posed) = (frames("novel_poses_view01"), frames("poses_motion_view01"));
-    assert_eq!(posed.len(), 4);
-    assert_eq!(dataset.len(), posed.len());
+    let motion = amass_of_novel_frames(dir.path());
+    let gif = jobs::render(&run, motion_job(&motion, 1), &quiet())
+        .unwrap()
+        .gif;
+    assert!(gif.ends_with("renders/motion_novel_view01.gif"), "{gif:?}");
+    let dataset = pngs(&run.join("renders/novel_poses_view01"));
+    let posed = pngs(&run.join("renders/motion_novel_view01"));
+    assert_eq!((dataset.len(), posed.len()), (4, 4));
     for (a, b) in dataset.iter().zip(&posed) {
         let (a, b) = (read_rgb(a).unwrap(), read_rgb(b).unwrap());
         let psnr = ImageMetrics::compute(&b, &a, None).unwrap().psnr;
@@ -86,6 +121,194 @@ fn pose_files_render_as_the_dataset_frames_they_came_from() {
             b.size()
         );
     }
+}
+
+/// With the neural field, a motion's own fit (stage 2 on its frames) renders the novel poses as well as
+/// `anerf eval`'s novel-pose renders, within 0.5 dB with the paper's protocol on each test view; the fit
+/// is stored, and rendering again reuses it.
+#[test]
+fn render_motion_matches_the_novel_pose_evaluation_within_half_a_db() {
+    let dir = tempfile::tempdir().unwrap();
+    let run = animated(
+        dir.path(),
+        &["train.iterations=30", "animate.iterations=30"],
+    );
+    let evaluated = jobs::eval(&run, EvalSplit::NovelPose, &quiet()).unwrap();
+    let records = read_records_json(&evaluated.dir.join("metrics.json")).unwrap();
+    let motion = amass_of_novel_frames(dir.path());
+    let views: Vec<usize> = {
+        let mut v: Vec<usize> = records.iter().map(|r| r.view.0).collect();
+        v.sort_unstable();
+        v.dedup();
+        v
+    };
+    assert!(!views.is_empty());
+    for view in views {
+        jobs::render(&run, motion_job(&motion, view), &quiet()).unwrap();
+        let renders = pngs(&run.join(format!("renders/motion_novel_view{view:02}")));
+        let ours: Vec<f64> = records
+            .iter()
+            .filter(|r| r.view.0 == view)
+            .enumerate()
+            .map(|(i, r)| {
+                let images = evaluated.dir.join("images");
+                let gt = read_rgb(&images.join(format!("{}_gt.png", r.stem()))).unwrap();
+                let mask = read_mask(&images.join(format!("{}_mask.png", r.stem()))).unwrap();
+                let pred = read_rgb(&renders[i]).unwrap();
+                ImageMetrics::compute(&pred, &gt, Some(&mask)).unwrap().psnr
+            })
+            .collect();
+        let eval: Vec<f64> = records
+            .iter()
+            .filter(|r| r.view.0 == view)
+            .map(|r| r.psnr)
+            .collect();
+        let mean = |v: &[f64]| v.iter().sum::<f64>() / v.len() as f64;
+        let (a, b) = (mean(&ours), mean(&eval));
+        eprintln!("view {view}: render --motion {a:.2} dB, eval {b:.2} dB");
+        assert_eq!(ours.len(), 4);
+        assert!(
+            (a - b).abs() <= 0.5,
+            "view {view}: {a:.2} dB vs eval's {b:.2} dB"
+        );
+    }
+    let field = run.join("motions/novel/field.bpk");
+    let written = std::fs::metadata(&field).unwrap().modified().unwrap();
+    let again = jobs::animate_motion(
+        &run,
+        &MotionRequest {
+            place: Place::Recorded,
+            ..MotionRequest::new(&motion)
+        },
+        None,
+        &quiet(),
+    )
+    .unwrap();
+    assert!(again.reused && again.frames == 4, "{again:?}");
+    assert_eq!(
+        std::fs::metadata(&field).unwrap().modified().unwrap(),
+        written
+    );
+    // Other frames are other poses: refitted, and the record replaced.
+    let two = MotionRequest {
+        place: Place::Recorded,
+        frames: "0:2".parse().unwrap(),
+        ..MotionRequest::new(&motion)
+    };
+    let refit = jobs::animate_motion(&run, &two, None, &quiet()).unwrap();
+    assert!(!refit.reused && refit.frames == 2, "{refit:?}");
+    assert!(
+        jobs::animate_motion(&run, &two, None, &quiet())
+            .unwrap()
+            .reused
+    );
+}
+
+/// The command line: `anerf animate --motion` stores the fit, `anerf render --motion` with a frame range and
+/// an orbit writes one image per frame; a malformed offset is refused by the parser.
+#[test]
+fn the_motion_flags_of_animate_and_render() {
+    let dir = tempfile::tempdir().unwrap();
+    let config = tiny(dir.path(), &["train.iterations=2", "animate.iterations=2"]);
+    let run = trained(&config, dir.path());
+    let motion = amass_of_novel_frames(dir.path());
+    let anerf = || std::process::Command::new(env!("CARGO_BIN_EXE_anerf"));
+    let out = anerf()
+        .arg("animate")
+        .arg(&run)
+        .arg("--motion")
+        .arg(&motion)
+        .args(["--place", "recorded", "--frames", "1:4"])
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        out.status.success() && stderr.contains("fitted 3 frames"),
+        "{stderr}"
+    );
+    assert!(run.join("motions/novel/fit.json").is_file());
+    let out = anerf()
+        .arg("render")
+        .arg(&run)
+        .arg("--motion")
+        .arg(&motion)
+        .args([
+            "--place", "recorded", "--frames", "1:4", "--orbit", "--size", "16",
+        ])
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        out.status.success() && stderr.contains("stored fit"),
+        "{stderr}"
+    );
+    let frames = pngs(&run.join("renders/motion_novel_orbit"));
+    assert_eq!(frames.len(), 3);
+    assert_eq!(read_rgb(&frames[0]).unwrap().size().width, 16);
+    let out = anerf()
+        .arg("render")
+        .arg(&run)
+        .arg("--motion")
+        .arg(&motion)
+        .args(["--offset", "1,2"])
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        !out.status.success() && stderr.contains("x,y,z"),
+        "{stderr}"
+    );
+}
+
+/// A bad motion is refused, naming the file and key, before anything is written into the run.
+#[test]
+fn a_bad_motion_leaves_the_run_untouched() {
+    let dir = tempfile::tempdir().unwrap();
+    let config = tiny(dir.path(), &["train.iterations=2"]);
+    let run = trained(&config, dir.path());
+    let before = pngs(&run);
+    let cases = [
+        (fixture("motion/bad/nan.npz"), "non-finite"),
+        (fixture("motion/bad/width.npz"), "fits no known body model"),
+        (
+            fixture("motion/bad/rate_zero.npz"),
+            "'mocap_framerate' is 0",
+        ),
+        (fixture("motion/bad/object.npz"), "pickled objects"),
+    ];
+    for (path, wanted) in cases {
+        let err = jobs::render(&run, motion_job(&path, 1), &quiet()).unwrap_err();
+        let text = format!("{err:#}");
+        let file = path.file_name().unwrap().to_string_lossy();
+        assert!(
+            text.contains(file.as_ref()) && text.contains(wanted),
+            "{text}"
+        );
+    }
+    let motion = amass_of_novel_frames(dir.path());
+    let far = RenderJob::Motion {
+        request: MotionRequest {
+            place: Place::Recorded,
+            frames: "2:9".parse().unwrap(),
+            ..MotionRequest::new(&motion)
+        },
+        camera: MotionCamera::View(Some(1)),
+        size: None,
+    };
+    let text = format!("{:#}", jobs::render(&run, far, &quiet()).unwrap_err());
+    assert!(text.contains("outside the motion's 4 frames"), "{text}");
+    let placed = RenderJob::Motion {
+        request: MotionRequest {
+            place: Place::Recorded,
+            start_frame: Some(1),
+            ..MotionRequest::new(&motion)
+        },
+        camera: MotionCamera::View(Some(1)),
+        size: None,
+    };
+    let text = format!("{:#}", jobs::render(&run, placed, &quiet()).unwrap_err());
+    assert!(text.contains("--place floor"), "{text}");
+    assert_eq!(pngs(&run), before, "nothing was added to the run folder");
 }
 
 /// Stage-2 loss of `model` summed over `targets`, on fixed points (a grid in each world box and in the
@@ -144,13 +367,20 @@ fn fitting_pose_codes_lowers_their_consistency_loss() {
         .unwrap()
         .load_model(&config.model, &device)
         .unwrap();
-    let sequence = PoseSequence::load(&motion(dir.path()), &exp.prepared).unwrap();
-    let targets = sequence.targets(exp.novel_appearance(), &device);
+    // The pose files of the novel-pose frames 6..10 (a ZJU params folder is a motion as recorded).
+    let request = MotionRequest {
+        frames: "6:10".parse().unwrap(),
+        ..MotionRequest::new(dir.path().join("subject/new_params"))
+    };
+    let clip = MotionClip::new(&request, &exp, exp.train_views[0]).unwrap();
+    let mut targets: Vec<PoseTarget> = (0..clip.poses.len())
+        .map(|i| clip.target(&exp, i, &device).unwrap())
+        .collect();
     let fresh = model.clone().with_novel_field(targets.len(), &device);
     let before = consistency(&fresh, &targets, &exp);
     let fitted = fit_pose_codes(
         model,
-        &targets,
+        &mut targets,
         exp.canonical(),
         &config.animate,
         config.seed,

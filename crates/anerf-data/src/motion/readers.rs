@@ -106,14 +106,16 @@ fn read_amass(path: &Path) -> Result<Motion, DataError> {
         (72, false) => MotionFormat::AmassSmpl,
         (156, false) => MotionFormat::AmassSmplh,
         (66 | 162 | 165, true) => MotionFormat::AmassSmplx,
-        _ => return Err(DataError::invalid(
-            path,
-            format!(
+        _ => {
+            return Err(DataError::invalid(
+                path,
+                format!(
                 "'poses' has {width} values a frame with '{rate_key}', which fits no known body \
                      model (SMPL+H: 156 with mocap_framerate; SMPL-X: 162 or 165 with \
                      mocap_frame_rate; SMPL: 72)"
             ),
-        )),
+            ))
+        }
     };
     if split {
         let root = finite(

@@ -4,6 +4,7 @@
 
 mod eval;
 mod mesh;
+mod motion;
 mod render;
 mod stages;
 
@@ -17,6 +18,7 @@ use burn::prelude::Device;
 
 pub use eval::{eval, Evaluated};
 pub use mesh::{mesh, MeshFile, MeshFiles};
+pub use motion::{animate_motion, FittedMotion, MotionCamera};
 pub use render::{render, RenderJob, Rendered};
 pub use stages::{animate, train};
 

@@ -1,4 +1,4 @@
-//! Rendering a run: an orbit around a dataset frame, the novel-pose frames, or the poses of pose files.
+//! Rendering a run: an orbit around a dataset frame, the novel-pose frames, or a motion.
 
 use std::path::{Path, PathBuf};
 
@@ -7,10 +7,12 @@ use anerf_core::FrameId;
 use anerf_eval::images::{write_gif, write_mp4, write_png, PngDepth, VideoOutcome};
 use anyhow::{bail, Context, Result};
 
+use super::motion::{render_motion, MotionCamera, MotionFrames};
 use super::{device, load_trained, open_run, JobOptions};
 use crate::experiment::Experiment;
 use crate::memory::Work;
-use crate::render::{render_shot, render_view, Shot};
+use crate::motion::MotionRequest;
+use crate::render::render_view;
 use crate::run_dir::RunDir;
 
 /// What `anerf render` draws.
@@ -24,9 +26,13 @@ pub enum RenderJob {
     },
     /// Every novel-pose frame of the run from dataset camera `view` (needs stage 2).
     NovelPoses { view: usize },
-    /// The poses of a pose file or folder (`params/{i}.npy` format) from dataset camera `view` (default:
-    /// the first training view), after fitting their blend-weight codes as stage 2 does.
-    PoseFiles { path: PathBuf, view: Option<usize> },
+    /// A motion (any file [`anerf_data::motion::Motion::read`] reads), its stage-2 field fitted and
+    /// stored first when the run has none for its poses.
+    Motion {
+        request: MotionRequest,
+        camera: MotionCamera,
+        size: Option<u32>,
+    },
 }
 
 /// Dataset camera `view` at the working resolution.
@@ -55,40 +61,37 @@ pub struct Rendered {
 /// Renders `job`: PNG frames, an animated GIF and (with ffmpeg on PATH) an MP4 under `<run>/renders/`.
 pub fn render(run_path: &Path, job: RenderJob, options: &JobOptions) -> Result<Rendered> {
     let (run, config) = open_run(run_path, options, Work::Render)?;
-    let device = device(&config, options)?;
-    // Pose files need their blend-weight codes fitted first, which takes gradients.
-    let device = match job {
-        RenderJob::PoseFiles { .. } => device.autodiff(),
-        _ => device,
-    };
-    let model = load_trained(&run, &config, &device)?;
-    let mut exp = Experiment::open(config, device, options.progress)?;
-    let (name, frames) = match job {
-        RenderJob::PoseFiles { path, view } => {
-            render_pose_files(model, &exp, &path, view, options)?
+    let (name, frames, fps) = match job {
+        RenderJob::Motion {
+            request,
+            camera,
+            size,
+        } => {
+            let m = render_motion(&run, config, &request, camera, size, options)?;
+            report_motion(&m);
+            (m.name, m.images, m.fps)
         }
         RenderJob::Orbit { frame, views, size } => {
+            let (model, mut exp) = open_model(&run, config, options)?;
             let (name, shots) = orbit_shots(&exp, &model, frame, views, size)?;
-            (
-                name,
-                render_dataset_shots(&model, &mut exp, &shots, options)?,
-            )
+            let frames = render_dataset_shots(&model, &mut exp, &shots, options)?;
+            (name, frames, 12.0)
         }
         RenderJob::NovelPoses { view } => {
+            let (model, mut exp) = open_model(&run, config, options)?;
             let (name, shots) = novel_pose_shots(&exp, &model, &run, view)?;
-            (
-                name,
-                render_dataset_shots(&model, &mut exp, &shots, options)?,
-            )
+            let frames = render_dataset_shots(&model, &mut exp, &shots, options)?;
+            (name, frames, 12.0)
         }
     };
     let dir = run.renders().join(&name);
     for (i, frame) in frames.iter().enumerate() {
         write_png(&dir.join(format!("{i:04}.png")), frame, PngDepth::Eight)?;
     }
+    let fps = (fps.round() as u32).max(1);
     let gif = run.renders().join(format!("{name}.gif"));
-    write_gif(&gif, &frames, 12)?;
-    let mp4 = match write_mp4(&run.renders().join(format!("{name}.mp4")), &frames, 12)? {
+    write_gif(&gif, &frames, fps)?;
+    let mp4 = match write_mp4(&run.renders().join(format!("{name}.mp4")), &frames, fps)? {
         VideoOutcome::Written(path) => Some(path),
         _ => None,
     };
@@ -100,46 +103,37 @@ pub fn render(run_path: &Path, job: RenderJob, options: &JobOptions) -> Result<R
     })
 }
 
-/// Fits a stage-2 field for the poses of `path` and renders them from dataset camera `view` (default: the
-/// first training view): the output name and the images.
-fn render_pose_files(
-    model: AnimatableNerf,
-    exp: &Experiment,
-    path: &Path,
-    view: Option<usize>,
+/// The run's trained model and its experiment.
+fn open_model(
+    run: &RunDir,
+    config: crate::config::ExperimentConfig,
     options: &JobOptions,
-) -> Result<(String, Vec<image::Rgb32FImage>)> {
-    let view = view.unwrap_or(exp.train_views[0].0);
-    let camera = dataset_camera(exp, view)?;
-    let sequence = crate::poses::PoseSequence::load(path, &exp.prepared)?;
-    let targets = sequence.targets(exp.novel_appearance(), &exp.device);
-    let model = crate::training::fit_pose_codes(
-        model,
-        &targets,
-        exp.canonical(),
-        &exp.config.animate,
-        exp.config.seed,
-        options.progress,
-    )?;
-    let bar = options.bar("render", targets.len());
-    let mut frames = Vec::with_capacity(targets.len());
-    for (target, file) in targets.iter().zip(&sequence.files) {
-        let shot = Shot {
-            inputs: &target.inputs,
-            bounds: target.bounds,
-            camera: &camera,
-            ground_truth: None,
-        };
-        let image = render_shot(&model, exp.canonical(), &shot, &exp.config.eval)
-            .with_context(|| format!("rendering the pose of {}", file.display()))?;
-        frames.push(image.prediction);
-        bar.set_step(frames.len());
-    }
-    bar.finish(frames.len(), "finished");
-    let stem = path
-        .file_stem()
-        .map_or("poses".into(), |s| s.to_string_lossy().into_owned());
-    Ok((format!("poses_{stem}_view{view:02}"), frames))
+) -> Result<(AnimatableNerf, Experiment)> {
+    let device = device(&config, options)?;
+    let model = load_trained(run, &config, &device)?;
+    Ok((model, Experiment::open(config, device, options.progress)?))
+}
+
+/// Prints what a motion render cost, per frame.
+fn report_motion(m: &MotionFrames) {
+    let n = m.images.len().max(1) as f64;
+    let fit = if m.fit.reused {
+        format!("stored fit {}", m.fit.dir.display())
+    } else {
+        format!(
+            "fitted in {:.1} s ({:.2} s/frame), stored in {}",
+            m.fit.seconds,
+            m.fit.seconds / n,
+            m.fit.dir.display()
+        )
+    };
+    eprintln!(
+        "motion: {} frames at {} fps; {fit}; rendered in {:.1} s ({:.2} s/frame)",
+        m.images.len(),
+        m.fps,
+        m.seconds,
+        m.seconds / n
+    );
 }
 
 /// A dataset frame seen by a camera.

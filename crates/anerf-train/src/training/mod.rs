@@ -19,7 +19,7 @@ use burn::prelude::Device;
 
 pub use driver::LoopState;
 pub use stage1::{silhouette_loss, train_stage1};
-pub use stage2::{fit_pose_codes, train_stage2, PoseTarget};
+pub use stage2::{fit_pose_codes, train_stage2, PoseTarget, PoseTargets};
 
 use crate::checkpoint::{Checkpoint, TrainerState};
 use crate::experiment::Experiment;

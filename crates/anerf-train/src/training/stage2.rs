@@ -8,7 +8,7 @@ use anerf_core::geometry::skinning::points_tensor;
 use anerf_core::geometry::Aabb;
 use anerf_core::model::{AnimatableNerf, CanonicalInputs, FrameInputs};
 use anerf_core::tensor::to_host;
-use anyhow::{bail, Context, Result};
+use anyhow::{bail, Result};
 use burn::prelude::*;
 use glam::Vec3;
 use rand::{Rng, SeedableRng};
@@ -26,6 +26,7 @@ use crate::stage::Stage;
 
 /// A pose stage 2 fits a blend-weight code for: its model inputs (`code` =
 /// [`anerf_core::model::FrameCode::Novel`]) and the world-space box around its body (metres).
+#[derive(Debug, Clone)]
 pub struct PoseTarget {
     pub inputs: FrameInputs,
     pub bounds: Aabb,
@@ -50,19 +51,7 @@ pub fn train_stage2(
             resume_point(run, Stage::Animate, &model_cfg, cfg.grad_clip, &device)?;
         (model.freeze_stage1(), optim, state)
     } else {
-        let stage1 = Checkpoint::restore_newest(
-            &run.checkpoints(),
-            Stage::Train,
-            &model_cfg,
-            &device,
-            None,
-        )?
-        .with_context(|| {
-            format!(
-                "{} has no stage-1 checkpoint; run `anerf train` first",
-                run.root.display()
-            )
-        })?;
+        let stage1 = Checkpoint::restore_stage1(run, &model_cfg, &device)?;
         check_sizes(&stage1.state, exp)?;
         let seed = exp.config.seed;
         device.seed(stream_seed(seed, Stream::Stage2Device));
@@ -196,6 +185,25 @@ fn uniform_in_box(rng: &mut ChaCha8Rng, bounds: Aabb, n: usize) -> Vec<Vec3> {
         .collect()
 }
 
+/// The poses a pose-code fit draws from, each built when a step draws it, so that a long motion's
+/// volumes need not all be in memory at once.
+pub trait PoseTargets {
+    /// Number of poses (codes `Novel(0..len)`).
+    fn len(&self) -> usize;
+    /// Pose `i`'s inputs and box.
+    fn target(&mut self, i: usize) -> Result<PoseTarget>;
+}
+
+impl PoseTargets for Vec<PoseTarget> {
+    fn len(&self) -> usize {
+        Vec::len(self)
+    }
+
+    fn target(&mut self, i: usize) -> Result<PoseTarget> {
+        Ok(self[i].clone())
+    }
+}
+
 /// Fits blend-weight codes for `targets` (poses outside the run's data, e.g. from pose files) as stage 2
 /// does — the `[animate]` steps of `cfg.batch` points, poses drawn at random, stopping on a plateau as
 /// stage 2 does — and returns the model with them as its novel-pose field, every parameter frozen.
@@ -203,7 +211,7 @@ fn uniform_in_box(rng: &mut ChaCha8Rng, bounds: Aabb, n: usize) -> Vec<Vec3> {
 /// must live on an autodiff device.
 pub fn fit_pose_codes(
     model: AnimatableNerf,
-    targets: &[PoseTarget],
+    targets: &mut dyn PoseTargets,
     canonical: &CanonicalInputs,
     cfg: &StageConfig,
     seed: u64,
@@ -211,7 +219,7 @@ pub fn fit_pose_codes(
 ) -> Result<AnimatableNerf> {
     let device = model.device();
     let model = model.with_novel_field(targets.len(), &device);
-    if !model.config().neural_blend_weights || targets.is_empty() {
+    if !model.config().neural_blend_weights || targets.len() == 0 {
         return Ok(model.no_grad());
     }
     device.seed(stream_seed(seed, Stream::PoseFitDevice));
@@ -235,7 +243,7 @@ pub fn fit_pose_codes(
 
 /// A step of a pose-file fit.
 struct PoseFit<'a> {
-    targets: &'a [PoseTarget],
+    targets: &'a mut dyn PoseTargets,
     canonical: &'a CanonicalInputs,
     cfg: &'a StageConfig,
     rng: ChaCha8Rng,
@@ -253,11 +261,12 @@ impl Step for PoseFit<'_> {
 
     fn loss(&mut self, model: &AnimatableNerf) -> Result<(Tensor<1>, StepValues)> {
         let j = self.rng.random_range(0..self.targets.len());
+        let target = self.targets.target(j)?;
         Ok(stage2_loss(
             model,
             &mut self.rng,
             self.cfg,
-            &self.targets[j],
+            &target,
             self.canonical,
         ))
     }

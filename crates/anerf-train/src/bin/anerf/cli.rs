@@ -6,9 +6,12 @@ use std::sync::atomic::AtomicBool;
 use std::sync::Arc;
 
 use anerf_core::DeviceChoice;
+use anerf_data::motion::FrameRange;
 use anerf_train::jobs::JobOptions;
+use anerf_train::motion::{MotionRequest, Place};
 use anerf_train::run_start::RunStart;
 use clap::{Args, Parser, Subcommand};
+use glam::DVec3;
 
 use crate::commands;
 
@@ -116,6 +119,72 @@ pub struct StartArgs {
 impl StartArgs {
     pub fn run_start(&self) -> RunStart {
         RunStart::from_flags(self.resume, self.overwrite)
+    }
+}
+
+/// A motion to drive the avatar with, and how to put it on the run's subject.
+#[derive(Debug, Args)]
+pub struct MotionArgs {
+    /// An AMASS `.npz` (SMPL+H, SMPL-X), an EasyMocap fit folder (or its capture) or a ZJU `params/` folder.
+    #[arg(long)]
+    pub motion: Option<PathBuf>,
+    /// Output frames per second (default: the motion's own); the motion is resampled (slerp).
+    #[arg(long, requires = "motion")]
+    pub fps: Option<f64>,
+    /// The motion's rate where its format records none (EasyMocap, ZJU; default: --fps, else 30).
+    #[arg(long, requires = "motion")]
+    pub motion_fps: Option<f64>,
+    /// Frames of the resampled motion, `start:end:step` (end exclusive), e.g. `0:300`.
+    #[arg(long, requires = "motion")]
+    pub frames: Option<FrameRange>,
+    /// `floor`: on the capture's floor, starting where the subject stood, facing a camera; `recorded`: where
+    /// the motion's world puts it; `auto`: floor for AMASS, recorded for EasyMocap and ZJU.
+    #[arg(long, value_enum, default_value_t = Place::Auto)]
+    pub place: Place,
+    /// Training frame whose pelvis position the motion starts from (default: the first training frame).
+    #[arg(long, requires = "motion")]
+    pub start_frame: Option<usize>,
+    /// Dataset camera the motion's first frame faces (default: the render view).
+    #[arg(long, requires = "motion")]
+    pub face_view: Option<usize>,
+    /// World-space shift after placement, metres: `x,y,z`.
+    #[arg(long, requires = "motion", value_parser = parse_offset, allow_hyphen_values = true)]
+    pub offset: Option<DVec3>,
+    /// EasyMocap person id (default: the lowest id).
+    #[arg(long, requires = "motion")]
+    pub person: Option<i64>,
+}
+
+impl MotionArgs {
+    /// The request, when `--motion` was given.
+    pub fn request(&self) -> Option<MotionRequest> {
+        let path = self.motion.clone()?;
+        Some(MotionRequest {
+            person: self.person,
+            fps: self.fps,
+            motion_fps: self.motion_fps,
+            frames: self.frames.unwrap_or(FrameRange::ALL),
+            place: self.place,
+            start_frame: self.start_frame,
+            face_view: self.face_view,
+            offset: self.offset,
+            ..MotionRequest::new(path)
+        })
+    }
+}
+
+/// `x,y,z` in metres.
+fn parse_offset(s: &str) -> Result<DVec3, String> {
+    let v: Vec<f64> = s
+        .split(',')
+        .map(|p| p.trim().parse::<f64>())
+        .collect::<Result<_, _>>()
+        .map_err(|_| format!("'{s}' is not x,y,z in metres"))?;
+    match v[..] {
+        [x, y, z] if v.iter().all(|c| c.is_finite()) => Ok(DVec3::new(x, y, z)),
+        _ => Err(format!(
+            "'{s}' is not x,y,z in metres (three finite numbers)"
+        )),
     }
 }
 

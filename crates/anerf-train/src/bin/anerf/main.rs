@@ -57,7 +57,7 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
             false
         }
         Command::Train(a) => commands::train::run(&a)?.interrupted,
-        Command::Animate(a) => commands::animate::run(&a)?.interrupted,
+        Command::Animate(a) => commands::animate::run(&a)?,
         Command::Eval(a) => {
             commands::eval::run(&a)?;
             false

@@ -1,12 +1,12 @@
-//! `anerf render`: an orbit, the novel-pose frames or the poses of pose files, as PNGs, a GIF and an MP4.
+//! `anerf render`: an orbit, the novel-pose frames or a motion, as PNGs, a GIF and an MP4.
 
 use std::path::PathBuf;
 
-use anerf_train::jobs::{self, RenderJob, Rendered};
+use anerf_train::jobs::{self, MotionCamera, RenderJob, Rendered};
 use anyhow::Result;
 use clap::Args;
 
-use crate::cli::Common;
+use crate::cli::{Common, MotionArgs};
 
 #[derive(Debug, Args)]
 pub struct RenderArgs {
@@ -18,16 +18,19 @@ pub struct RenderArgs {
     #[arg(long, default_value_t = 36)]
     pub views: usize,
     /// Render the run's novel-pose frames from this camera instead of an orbit.
-    #[arg(long, conflicts_with = "poses")]
+    #[arg(long, conflicts_with = "motion")]
     pub novel_poses_from_view: Option<usize>,
-    /// Render the poses of this pose file, or of every pose file in this folder (`params/{i}.npy` format:
-    /// `poses`, `Rh`, `Th`), after fitting their blend-weight codes with the run's `[animate]` settings.
-    #[arg(long)]
-    pub poses: Option<PathBuf>,
-    /// Dataset camera of `--poses` (default: the first training view).
-    #[arg(long, requires = "poses")]
+    /// Drive the avatar with a motion (its stage-2 field is fitted with the run's `[animate]` settings and
+    /// stored in `<run>/motions/` unless stored already; see `anerf animate --motion`).
+    #[command(flatten)]
+    pub motion: MotionArgs,
+    /// Dataset camera of `--motion` (default: the first training view).
+    #[arg(long, requires = "motion", conflicts_with = "orbit")]
     pub view: Option<usize>,
-    /// Output image size (width = height) of the orbit; default: the dataset's.
+    /// Render `--motion` from the first training view's camera circling the body once.
+    #[arg(long, requires = "motion")]
+    pub orbit: bool,
+    /// Output image size (width = height) of an orbit or a motion; default: the dataset's.
     #[arg(long)]
     pub size: Option<u32>,
     #[command(flatten)]
@@ -36,10 +39,15 @@ pub struct RenderArgs {
 
 impl RenderArgs {
     fn job(&self) -> RenderJob {
-        match (&self.poses, self.novel_poses_from_view) {
-            (Some(path), _) => RenderJob::PoseFiles {
-                path: path.clone(),
-                view: self.view,
+        match (self.motion.request(), self.novel_poses_from_view) {
+            (Some(request), _) => RenderJob::Motion {
+                request,
+                camera: if self.orbit {
+                    MotionCamera::Orbit
+                } else {
+                    MotionCamera::View(self.view)
+                },
+                size: self.size,
             },
             (None, Some(view)) => RenderJob::NovelPoses { view },
             (None, None) => RenderJob::Orbit {
