@@ -260,6 +260,91 @@ fn the_motion_flags_of_animate_and_render() {
     );
 }
 
+/// `--place floor` in a run: the clip's lowest vertex is at the lowest vertex of the training frames (along
+/// the cameras' mean up), its first pelvis above the pelvis of `--start-frame`, facing `--face-view`'s
+/// camera, and `--offset` moves every frame by itself.
+#[test]
+fn a_floor_placed_motion_stands_where_the_subject_stood_facing_the_camera() {
+    let dir = tempfile::tempdir().unwrap();
+    let config = tiny(dir.path(), &[]);
+    let exp = Experiment::open(config, cpu_device(), false).unwrap();
+    let motion = amass_of_novel_frames(dir.path());
+    let request = MotionRequest {
+        place: Place::Floor,
+        start_frame: Some(3),
+        face_view: Some(2),
+        ..MotionRequest::new(&motion)
+    };
+    let clip = MotionClip::new(&request, &exp, exp.train_views[0]).unwrap();
+    let body = exp.prepared.target_body();
+    let up = anerf_train::render::mean_up(&exp.prepared.cameras);
+    let world = |pose: &anerf_core::geometry::Pose| -> Vec<Vec3> {
+        body.pose_space_vertices(pose)
+            .unwrap()
+            .into_iter()
+            .map(|x| pose.global.pose_to_world(x))
+            .collect()
+    };
+    let lowest = |poses: &mut dyn Iterator<Item = &anerf_core::geometry::Pose>| {
+        poses
+            .flat_map(|p| world(p))
+            .map(|x| x.dot(up))
+            .fold(f32::INFINITY, f32::min)
+    };
+    let floor = lowest(
+        &mut exp
+            .train_frames
+            .iter()
+            .map(|&f| &exp.prepared.frame(f).unwrap().pose),
+    );
+    let ours = lowest(&mut clip.poses.iter());
+    assert!(
+        (ours - floor).abs() < 1e-4,
+        "lowest vertex {ours}, floor {floor}"
+    );
+    let flat = |v: Vec3| v - v.dot(up) * up;
+    let pelvis = |p: &anerf_core::geometry::Pose| {
+        p.global
+            .pose_to_world(exp.prepared.skeleton.rest_joints()[0])
+    };
+    let start = pelvis(&exp.prepared.frame(anerf_core::FrameId(3)).unwrap().pose);
+    assert!((flat(pelvis(&clip.poses[0])) - flat(start)).length() < 1e-4);
+    let facing = flat(clip.poses[0].global.rotation() * (Vec3::Z)).normalize();
+    let wanted = flat(exp.prepared.cameras[2].center() - start).normalize();
+    assert!(
+        facing.dot(wanted) > 1.0 - 1e-4,
+        "faces {facing}, camera 2 is toward {wanted}"
+    );
+    let offset = glam::DVec3::new(0.1, 0.2, -0.3);
+    let moved = MotionClip::new(
+        &MotionRequest {
+            offset: Some(offset),
+            ..request
+        },
+        &exp,
+        exp.train_views[0],
+    )
+    .unwrap();
+    for (m, p) in moved.poses.iter().zip(&clip.poses) {
+        assert!((m.global.th - p.global.th - offset.as_vec3()).length() < 1e-5);
+    }
+    let err = MotionClip::new(
+        &MotionRequest {
+            start_frame: Some(8),
+            place: Place::Floor,
+            ..MotionRequest::new(&motion)
+        },
+        &exp,
+        exp.train_views[0],
+    )
+    .unwrap_err();
+    assert!(
+        err.to_string()
+            .contains("--start-frame 8 is not a training frame"),
+        "{err}"
+    );
+}
+
 /// A bad motion is refused, naming the file and key, before anything is written into the run.
 #[test]
 fn a_bad_motion_leaves_the_run_untouched() {
