@@ -1,8 +1,9 @@
 //! Evaluation and outputs of anerf: PSNR and SSIM with the paper's protocol, image comparison, image and
-//! video files, metric reports, and mesh export.
+//! video files, metric reports, and mesh export (PLY, OBJ, skinned glTF).
 
 pub mod compare;
 pub mod error;
+pub mod gltf_export;
 pub mod images;
 pub mod mesh_io;
 pub mod mesh_smooth;

@@ -287,7 +287,7 @@ fn a_floor_placed_motion_stands_where_the_subject_stood_facing_the_camera() {
     };
     let lowest = |poses: &mut dyn Iterator<Item = &anerf_core::geometry::Pose>| {
         poses
-            .flat_map(|p| world(p))
+            .flat_map(&world)
             .map(|x| x.dot(up))
             .fold(f32::INFINITY, f32::min)
     };

@@ -37,29 +37,10 @@ pub struct MeshFiles {
 /// `<run>/meshes/`.
 pub fn mesh(run_path: &Path, job: &MeshJob, options: &JobOptions) -> Result<MeshFiles> {
     let (run, config) = open_run(run_path, options, Work::Render)?;
-    if !(job.voxel.is_finite() && job.voxel > 0.0) {
-        bail!("--voxel {}: expected a positive size in metres", job.voxel);
-    }
     let device = device(&config, options)?;
     let model = load_trained(&run, &config, &device)?;
     let mut exp = Experiment::open(config, device.clone(), options.progress)?;
-    let appearance = exp.train_frames.len() / 2;
-    let volume = exp.prepared.canonical_volume()?;
-    let chunk = exp.config.eval.chunk;
-    let mut cm = crate::mesh::canonical_mesh(
-        &model,
-        exp.canonical(),
-        &volume,
-        job,
-        appearance,
-        chunk,
-        &device,
-    )?;
-    if job.smooth > 0 {
-        let smoothing = anerf_eval::mesh_smooth::Smoothing::taubin(job.smooth);
-        cm.mesh.vertices =
-            anerf_eval::mesh_smooth::smooth_vertices(&cm.mesh.vertices, &cm.mesh.faces, smoothing)?;
-    }
+    let cm = canonical_surface(&model, &exp, job)?;
     let k = cm.num_joints;
     let columns: Vec<Vec<f32>> = (0..k)
         .map(|j| cm.weights.iter().skip(j).step_by(k).copied().collect())
@@ -102,6 +83,35 @@ pub fn mesh(run_path: &Path, job: &MeshJob, options: &JobOptions) -> Result<Mesh
         files.posed.push((FrameId(f), file));
     }
     Ok(files)
+}
+
+/// The run's canonical mesh at `job`'s voxel, level and smoothing, with `w^can` and colours (the appearance
+/// code of the middle training frame) at its vertices.
+pub(super) fn canonical_surface(
+    model: &AnimatableNerf,
+    exp: &Experiment,
+    job: &MeshJob,
+) -> Result<crate::mesh::CanonicalMesh> {
+    if !(job.voxel.is_finite() && job.voxel > 0.0) {
+        bail!("--voxel {}: expected a positive size in metres", job.voxel);
+    }
+    let appearance = exp.train_frames.len() / 2;
+    let volume = exp.prepared.canonical_volume()?;
+    let mut cm = crate::mesh::canonical_mesh(
+        model,
+        exp.canonical(),
+        &volume,
+        job,
+        appearance,
+        exp.config.eval.chunk,
+        &exp.device,
+    )?;
+    if job.smooth > 0 {
+        let smoothing = anerf_eval::mesh_smooth::Smoothing::taubin(job.smooth);
+        cm.mesh.vertices =
+            anerf_eval::mesh_smooth::smooth_vertices(&cm.mesh.vertices, &cm.mesh.faces, smoothing)?;
+    }
+    Ok(cm)
 }
 
 /// Writes `view` as PLY at `path` and as OBJ beside it.

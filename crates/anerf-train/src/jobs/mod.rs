@@ -3,6 +3,7 @@
 //! what they return.
 
 mod eval;
+mod export;
 mod mesh;
 mod motion;
 mod render;
@@ -17,6 +18,7 @@ use anyhow::{bail, Context, Result};
 use burn::prelude::Device;
 
 pub use eval::{eval, Evaluated};
+pub use export::{capture_to_gltf, export, joint_frame, ExportJob, Exported, TRAINING_FPS};
 pub use mesh::{mesh, MeshFile, MeshFiles};
 pub use motion::{animate_motion, FittedMotion, MotionCamera};
 pub use render::{render, RenderJob, Rendered};

@@ -190,6 +190,9 @@ fn uniform_in_box(rng: &mut ChaCha8Rng, bounds: Aabb, n: usize) -> Vec<Vec3> {
 pub trait PoseTargets {
     /// Number of poses (codes `Novel(0..len)`).
     fn len(&self) -> usize;
+    fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
     /// Pose `i`'s inputs and box.
     fn target(&mut self, i: usize) -> Result<PoseTarget>;
 }
@@ -219,7 +222,7 @@ pub fn fit_pose_codes(
 ) -> Result<AnimatableNerf> {
     let device = model.device();
     let model = model.with_novel_field(targets.len(), &device);
-    if !model.config().neural_blend_weights || targets.len() == 0 {
+    if !model.config().neural_blend_weights || targets.is_empty() {
         return Ok(model.no_grad());
     }
     device.seed(stream_seed(seed, Stream::PoseFitDevice));

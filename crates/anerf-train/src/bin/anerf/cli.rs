@@ -8,6 +8,7 @@ use std::sync::Arc;
 use anerf_core::DeviceChoice;
 use anerf_data::motion::FrameRange;
 use anerf_train::jobs::JobOptions;
+use anerf_train::mesh::MeshJob;
 use anerf_train::motion::{MotionRequest, Place};
 use anerf_train::run_start::RunStart;
 use clap::{Args, Parser, Subcommand};
@@ -45,6 +46,8 @@ pub enum Command {
     Render(commands::render::RenderArgs),
     /// Extract the canonical mesh of a run (marching cubes on density) and repose it.
     Mesh(commands::mesh::MeshArgs),
+    /// Write a run as a skinned, animated glTF binary (.glb) for Blender, three.js, Unity, Unreal.
+    Export(commands::export::ExportArgs),
     /// PSNR and SSIM of two images (with a mask: the paper's protocol).
     Compare(commands::compare::CompareArgs),
     /// Training-step time, throughput, render time and peak memory of each model preset.
@@ -122,6 +125,34 @@ impl StartArgs {
     }
 }
 
+/// How the canonical surface is extracted (marching cubes on the canonical density).
+#[derive(Debug, Args)]
+pub struct SurfaceArgs {
+    /// Voxel size in metres.
+    #[arg(long, default_value_t = 0.005)]
+    pub voxel: f32,
+    /// Iso level on raw density (the reference uses 5).
+    #[arg(long, default_value_t = 5.0)]
+    pub level: f32,
+    /// Taubin smoothing iterations (0 = none).
+    #[arg(long, default_value_t = 0)]
+    pub smooth: usize,
+}
+
+impl SurfaceArgs {
+    /// A mesh job of these settings with no frames to repose.
+    pub fn job(&self) -> MeshJob {
+        MeshJob {
+            voxel: self.voxel,
+            level: self.level,
+            smooth: self.smooth,
+            frames: Vec::new(),
+            posed_frames: Vec::new(),
+            carve: true,
+        }
+    }
+}
+
 /// A motion to drive the avatar with, and how to put it on the run's subject.
 #[derive(Debug, Args)]
 pub struct MotionArgs {
@@ -144,7 +175,7 @@ pub struct MotionArgs {
     /// Training frame whose pelvis position the motion starts from (default: the first training frame).
     #[arg(long, requires = "motion")]
     pub start_frame: Option<usize>,
-    /// Dataset camera the motion's first frame faces (default: the render view).
+    /// Dataset camera the motion's first frame faces (default: the render view, else the first training view).
     #[arg(long, requires = "motion")]
     pub face_view: Option<usize>,
     /// World-space shift after placement, metres: `x,y,z`.

@@ -66,6 +66,10 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
             commands::render::run(&a)?;
             false
         }
+        Command::Export(a) => {
+            commands::export::run(&a)?;
+            false
+        }
         Command::Mesh(a) => {
             commands::mesh::run(&a)?;
             false

@@ -16,9 +16,6 @@ pub struct AnimateArgs {
     pub start: StartArgs,
     #[command(flatten)]
     pub motion: MotionArgs,
-    /// Dataset camera a placed motion faces (default: the first training view).
-    #[arg(long, requires = "motion")]
-    pub view: Option<usize>,
     #[command(flatten)]
     pub common: Common,
 }
@@ -27,7 +24,7 @@ pub struct AnimateArgs {
 pub fn run(args: &AnimateArgs) -> Result<bool> {
     let options = args.common.options();
     if let Some(request) = args.motion.request() {
-        let fitted = jobs::animate_motion(&args.run, &request, args.view, &options)?;
+        let fitted = jobs::animate_motion(&args.run, &request, None, &options)?;
         if fitted.reused {
             eprintln!(
                 "{} already holds the fit of these {} frames; nothing to do",

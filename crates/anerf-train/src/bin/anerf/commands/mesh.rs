@@ -7,20 +7,13 @@ use anerf_train::mesh::MeshJob;
 use anyhow::Result;
 use clap::Args;
 
-use crate::cli::Common;
+use crate::cli::{Common, SurfaceArgs};
 
 #[derive(Debug, Args)]
 pub struct MeshArgs {
     pub run: PathBuf,
-    /// Voxel size in metres.
-    #[arg(long, default_value_t = 0.005)]
-    pub voxel: f32,
-    /// Iso level on raw density (the reference uses 5).
-    #[arg(long, default_value_t = 5.0)]
-    pub level: f32,
-    /// Taubin smoothing iterations (0 = none).
-    #[arg(long, default_value_t = 0)]
-    pub smooth: usize,
+    #[command(flatten)]
+    pub surface: SurfaceArgs,
     /// Also repose the canonical mesh to these dataset frames, e.g. --frames 0,30,60.
     #[arg(long, value_delimiter = ',')]
     pub frames: Vec<usize>,
@@ -37,12 +30,10 @@ pub struct MeshArgs {
 
 pub fn run(args: &MeshArgs) -> Result<MeshFiles> {
     let job = MeshJob {
-        voxel: args.voxel,
-        level: args.level,
-        smooth: args.smooth,
         frames: args.frames.clone(),
         posed_frames: args.posed_frames.clone(),
         carve: !args.no_carve,
+        ..args.surface.job()
     };
     let files = jobs::mesh(&args.run, &job, &args.common.options())?;
     let c = &files.canonical;

@@ -6,6 +6,7 @@ pub mod bench;
 pub mod compare;
 pub mod demo;
 pub mod eval;
+pub mod export;
 pub mod import;
 pub mod info;
 pub mod mesh;
