@@ -4,11 +4,13 @@
 pub mod compare;
 pub mod error;
 pub mod gltf_export;
+pub mod heatmap;
 pub mod images;
 pub mod mesh_io;
 pub mod mesh_smooth;
 pub mod metrics;
 pub mod pixels;
+pub mod plots;
 pub mod report;
 
 pub use compare::{compare_files, Comparison};

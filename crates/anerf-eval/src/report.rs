@@ -182,6 +182,11 @@ impl EvalRecorder {
         write_png(&saved.pred, &pred, PngDepth::Sixteen)?;
         write_png(&saved.gt, &gt, PngDepth::Sixteen)?;
         write_mask_png(&saved.mask, mask)?;
+        write_png(
+            &saved.error,
+            &crate::heatmap::error_heat_map(&pred, &gt, mask),
+            PngDepth::Eight,
+        )?;
         let composite = side_by_side(&pred, &gt).expect("sizes were checked by the metrics");
         write_png(
             &self.dir.join("side_by_side").join(format!("{stem}.png")),
@@ -197,7 +202,8 @@ impl EvalRecorder {
         Ok(record)
     }
 
-    /// Writes `metrics.csv`, `metrics.json`, `summary.json` and `summary.md`; fails if nothing was recorded.
+    /// Writes `metrics.csv`, `metrics.json`, `summary.json`, `summary.md` and the per-view bar charts
+    /// `psnr_by_view.svg` and `ssim_by_view.svg`; fails if nothing was recorded.
     pub fn finish(self) -> Result<Summary, EvalError> {
         let summary = Summary::of(&self.records).ok_or_else(|| EvalError::InvalidInput {
             what: "evaluation",
@@ -213,8 +219,41 @@ impl EvalRecorder {
         write_with(&self.dir.join("summary.md"), |w| {
             write_text(w, &self.dir.join("summary.md"), &table)
         })?;
+        let views = per_view(&self.records);
+        for (file, title, unit, metric) in [
+            ("psnr_by_view.svg", "PSNR", "dB", 0),
+            ("ssim_by_view.svg", "SSIM", "", 1),
+        ] {
+            let bars: Vec<(String, f64)> = views
+                .iter()
+                .map(|(view, means)| (format!("view {view}"), means[metric]))
+                .collect();
+            crate::plots::write_bar_chart(
+                &self.dir.join(file),
+                &format!(
+                    "{} {title} per view ({} images)",
+                    self.split,
+                    self.records.len()
+                ),
+                &format!("mean {title} {unit}").trim_end().to_string(),
+                &bars,
+            )?;
+        }
         Ok(summary)
     }
+}
+
+/// Each view's mean PSNR and SSIM over its records, by view.
+pub fn per_view(records: &[ImageRecord]) -> Vec<(usize, [f64; 2])> {
+    let mut views: std::collections::BTreeMap<usize, (f64, f64, usize)> = Default::default();
+    for r in records {
+        let e = views.entry(r.view.0).or_default();
+        *e = (e.0 + r.psnr, e.1 + r.ssim, e.2 + 1);
+    }
+    views
+        .into_iter()
+        .map(|(v, (p, s, n))| (v, [p / n as f64, s / n as f64]))
+        .collect()
 }
 
 /// Paths of the images saved for one record.
@@ -222,6 +261,8 @@ struct SavedImages {
     pred: PathBuf,
     gt: PathBuf,
     mask: PathBuf,
+    /// The error heat map ([`crate::heatmap`]).
+    error: PathBuf,
 }
 
 impl SavedImages {
@@ -231,6 +272,7 @@ impl SavedImages {
             pred: images.join(format!("{stem}_pred.png")),
             gt: images.join(format!("{stem}_gt.png")),
             mask: images.join(format!("{stem}_mask.png")),
+            error: images.join(format!("{stem}_error.png")),
         }
     }
 }

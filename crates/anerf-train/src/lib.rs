@@ -9,6 +9,7 @@ pub mod jobs;
 pub mod memory;
 pub mod mesh;
 pub mod motion;
+pub mod plots;
 pub mod progress;
 pub mod render;
 pub mod run_dir;

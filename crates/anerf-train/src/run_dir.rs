@@ -60,6 +60,11 @@ impl RunDir {
         self.root.join("motions")
     }
 
+    /// Training-curve figures ([`crate::plots`]).
+    pub fn plots(&self) -> PathBuf {
+        self.root.join("plots")
+    }
+
     pub fn renders(&self) -> PathBuf {
         self.root.join("renders")
     }

@@ -197,3 +197,54 @@ fn export_refuses_a_model_without_surface_and_keeps_an_existing_file() {
     assert!(format!("{err:#}").contains("--overwrite"), "{err:#}");
     assert_eq!(std::fs::read(&out).unwrap(), b"mine");
 }
+
+/// Training draws `plots/stage1.svg`: one polyline per curve with a point per logged step, placed by one
+/// affine map of (step, value) — the figure's data are the log's.
+#[test]
+fn a_training_run_draws_its_curves_from_its_log() {
+    let dir = tempfile::tempdir().unwrap();
+    let config = tiny(dir.path(), &["train.iterations=6", "train.log_every=1"]);
+    let run = trained(&config, dir.path());
+    let svg = std::fs::read_to_string(run.join("plots/stage1.svg")).unwrap();
+    let log =
+        anerf_train::plots::read_log(&anerf_train::run_dir::RunDir::open(&run).unwrap()).unwrap();
+    let lr = anerf_train::plots::series(&log, 1, "psnr");
+    assert_eq!(lr.len(), 6);
+    let polylines: Vec<Vec<(f64, f64)>> = svg
+        .split("<polyline")
+        .skip(1)
+        .map(|p| {
+            let pts = p
+                .split("points=\"")
+                .nth(1)
+                .unwrap()
+                .split('"')
+                .next()
+                .unwrap();
+            pts.split_whitespace()
+                .map(|xy| {
+                    let (x, y) = xy.split_once(',').unwrap();
+                    (x.parse().unwrap(), y.parse().unwrap())
+                })
+                .collect()
+        })
+        .collect();
+    // Panels in order: loss (log y), PSNR (training, validation: none logged), learning rate (log y).
+    // The PSNR panel is linear: pixels are an affine map of (step, value), fixed by the lowest and the
+    // highest value and by the first and last step.
+    let lo = (0..6).min_by(|&i, &j| lr[i].1.total_cmp(&lr[j].1)).unwrap();
+    let hi = (0..6).max_by(|&i, &j| lr[i].1.total_cmp(&lr[j].1)).unwrap();
+    let psnr = polylines.iter().find(|p| {
+        p.len() == 6
+            && p.iter().zip(&lr).all(|(q, v)| {
+                let y = p[lo].1 + (p[hi].1 - p[lo].1) * (v.1 - lr[lo].1) / (lr[hi].1 - lr[lo].1);
+                let x = p[0].0 + (p[5].0 - p[0].0) * (v.0 - lr[0].0) / (lr[5].0 - lr[0].0);
+                (q.1 - y).abs() <= 1.0 && (q.0 - x).abs() <= 1.0
+            })
+    });
+    assert!(
+        psnr.is_some(),
+        "no polyline carries the logged PSNR: {polylines:?}"
+    );
+    assert!(run.join("plots/stage1.svg").is_file());
+}

@@ -49,7 +49,7 @@ pub fn train(
             stop,
         )
     });
-    result.inspect_err(|_| {
+    result.inspect(|_| plot(&run)).inspect_err(|_| {
         let kept = Checkpoint::latest(&run.checkpoints(), Stage::Train)
             .ok()
             .flatten()
@@ -80,6 +80,15 @@ pub fn animate(
         stage_options(start, options, max_steps),
         stop,
     )
+    .inspect(|_| plot(&run))
+}
+
+/// Redraws the run's training curves after a stage; a figure that cannot be drawn is a warning, not a
+/// failed stage.
+fn plot(run: &RunDir) {
+    if let Err(e) = crate::plots::write_run_plots(run) {
+        eprintln!("warning: the training curves were not drawn: {e:#}");
+    }
 }
 
 fn stage_options(start: RunStart, options: &JobOptions, max_steps: Option<usize>) -> TrainOptions {

@@ -46,6 +46,8 @@ pub enum Command {
     Render(commands::render::RenderArgs),
     /// Extract the canonical mesh of a run (marching cubes on density) and repose it.
     Mesh(commands::mesh::MeshArgs),
+    /// Draw a run's training curves (loss, PSNR, learning rate) from its log into <run>/plots/.
+    Plot(commands::plot::PlotArgs),
     /// Write a run as a skinned, animated glTF binary (.glb) for Blender, three.js, Unity, Unreal.
     Export(commands::export::ExportArgs),
     /// PSNR and SSIM of two images (with a mask: the paper's protocol).

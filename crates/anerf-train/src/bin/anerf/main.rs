@@ -66,6 +66,10 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
             commands::render::run(&a)?;
             false
         }
+        Command::Plot(a) => {
+            commands::plot::run(&a)?;
+            false
+        }
         Command::Export(a) => {
             commands::export::run(&a)?;
             false

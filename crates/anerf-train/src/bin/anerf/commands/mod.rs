@@ -10,6 +10,7 @@ pub mod export;
 pub mod import;
 pub mod info;
 pub mod mesh;
+pub mod plot;
 pub mod prepare;
 pub mod render;
 pub mod synth;
