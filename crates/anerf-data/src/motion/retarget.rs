@@ -6,7 +6,9 @@
 //! Frames: world space of the capture (metres) after placement; pose space as in [`Pose`]; the canonical
 //! body is Y-up and faces +Z, as SMPL's T-pose does.
 
-use anerf_core::geometry::{forward_lbs_point, CanonicalPose, GlobalTransform, Pose, Skeleton};
+use anerf_core::geometry::{
+    forward_lbs_point, BoneTransforms, CanonicalPose, GlobalTransform, Pose, Skeleton,
+};
 use glam::{DQuat, DVec3, Vec3};
 
 use super::{Motion, Root, BODY_JOINTS};
@@ -30,11 +32,16 @@ impl TargetBody<'_> {
             .skeleton
             .bone_transforms(pose, CanonicalPose::TPose)
             .map_err(|e| e.to_string())?;
+        self.skinned(&bones)
+    }
+
+    /// The canonical vertices skinned with bone transforms `bones` (canonical → pose space).
+    pub fn skinned(&self, bones: &BoneTransforms) -> Result<Vec<Vec3>, String> {
         self.vertices
             .iter()
             .enumerate()
             .map(|(v, &x)| {
-                forward_lbs_point(x, self.weights.row(v), &bones)
+                forward_lbs_point(x, self.weights.row(v), bones)
                     .map_err(|e| format!("vertex {v}: {e}"))
             })
             .collect()

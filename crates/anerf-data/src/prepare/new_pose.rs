@@ -50,7 +50,7 @@ impl PreparedSubject {
         let k = self.skeleton.num_joints();
         let pose_space = self
             .target_body()
-            .pose_space_vertices(pose)
+            .skinned(&bones)
             .map_err(|e| invalid(format!("{k}-joint body: {e}")))?;
         let bounds = Aabb::from_points(pose_space.iter().map(|&x| pose.global.pose_to_world(x)))
             .ok_or_else(|| invalid("the body has no vertices".into()))?
