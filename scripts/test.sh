@@ -6,9 +6,6 @@ if ! python3 -c "import numpy, scipy, skimage, PIL, plyfile, cv2" 2>/dev/null; t
     python3 -m pip install --quiet -r scripts/fixtures/requirements.txt
 fi
 python3 scripts/fixtures/generate.py --out target/fixtures
-# The Khronos glTF validator the export tests run (scripts/gltf/validate.cjs), pinned.
-GLTF_VALIDATOR=2.0.0-dev.3.10
-if ! grep -qs "\"version\": \"$GLTF_VALIDATOR\"" target/npm/node_modules/gltf-validator/package.json; then
-    npm install --silent --no-audit --no-fund --prefix target/npm "gltf-validator@$GLTF_VALIDATOR" >/dev/null
-fi
+# The pinned npm tools the tests drive (the glTF validator; playwright-core for the browser test).
+bash scripts/npm_tools.sh
 cargo test --workspace

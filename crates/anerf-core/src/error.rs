@@ -26,6 +26,17 @@ pub enum GeometryError {
     PoseSizeMismatch { expected: usize, got: usize },
     #[error("blend weights have {got} entries, the skeleton has {expected} joints")]
     WeightCountMismatch { expected: usize, got: usize },
+    #[error("{got} blend weights for {points} points of {joints} joints; expected {points} rows of {joints}")]
+    WeightRows {
+        points: usize,
+        joints: usize,
+        got: usize,
+    },
+    #[error("point {index}: {source}")]
+    AtPoint {
+        index: usize,
+        source: Box<GeometryError>,
+    },
     #[error("blend weights must be non-negative and sum to 1 (±{tolerance}), got sum {sum}")]
     WeightsNotNormalised { sum: f32, tolerance: f32 },
     #[error(

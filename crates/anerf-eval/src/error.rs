@@ -56,6 +56,8 @@ pub enum EvalError {
     },
     #[error("mask {path} has no non-zero pixel; expected at least one foreground pixel", path = path.display())]
     EmptyMask { path: PathBuf },
+    #[error("drawing a figure: {0}")]
+    Draw(String),
     #[error("{context}: {source}")]
     Metric {
         context: String,

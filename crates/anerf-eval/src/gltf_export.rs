@@ -27,7 +27,8 @@ pub struct SkinnedMesh<'a> {
     /// Bind-pose (canonical) positions, metres.
     pub positions: &'a [Vec3],
     pub faces: &'a [[u32; 3]],
-    /// Per-vertex colour in `[0, 1]`.
+    /// Per-vertex colour in `[0, 1]`, sRGB-encoded like the images it was learned from; the file stores
+    /// it linear, as glTF's `COLOR_0` is defined.
     pub colors: &'a [[f32; 3]],
     /// Per vertex, [`WEIGHTS_PER_VERTEX`] joints and their weights (summing to 1).
     pub joints: &'a [[u16; WEIGHTS_PER_VERTEX]],
@@ -199,6 +200,15 @@ impl Builder {
     }
 }
 
+/// The IEC 61966-2-1 sRGB decoding of one channel in `[0, 1]` (glTF vertex colours are linear).
+fn srgb_to_linear(c: f32) -> f32 {
+    if c <= 0.04045 {
+        c / 12.92
+    } else {
+        ((c + 0.055) / 1.055).powf(2.4)
+    }
+}
+
 fn glb_bytes(
     mesh: &SkinnedMesh,
     animation: &JointAnimation,
@@ -250,7 +260,7 @@ fn glb_bytes(
     let colors: Vec<f32> = mesh
         .colors
         .iter()
-        .flat_map(|c| c.map(|x| x.clamp(0.0, 1.0)))
+        .flat_map(|c| c.map(|x| srgb_to_linear(x.clamp(0.0, 1.0))))
         .collect();
     let colors = b.floats(&colors, v, Type::Vec3, Some(Target::ArrayBuffer), None);
     let joint_bytes: Vec<u8> = mesh
@@ -469,4 +479,22 @@ fn glb_bytes(
 /// The joint without a parent (joint 0 in SMPL-family skeletons).
 fn roots_first(parents: &[Option<usize>]) -> usize {
     parents.iter().position(Option::is_none).unwrap_or(0)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::srgb_to_linear;
+
+    #[test]
+    fn vertex_colours_are_decoded_from_srgb_as_the_standard_defines() {
+        // IEC 61966-2-1: the linear segment's end 0.04045 ↦ 0.04045/12.92, mid-grey 0.5 ↦ 0.21404, ends fixed.
+        assert_eq!(srgb_to_linear(0.0), 0.0);
+        assert!((srgb_to_linear(0.04045) - 0.003_130_8).abs() < 1e-6);
+        assert!((srgb_to_linear(0.5) - 0.214_041).abs() < 1e-5);
+        assert!((srgb_to_linear(1.0) - 1.0).abs() < 1e-6);
+        let samples: Vec<f32> = (0..=100)
+            .map(|i| srgb_to_linear(i as f32 / 100.0))
+            .collect();
+        assert!(samples.windows(2).all(|w| w[1] > w[0]));
+    }
 }

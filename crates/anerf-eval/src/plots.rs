@@ -38,20 +38,30 @@ const PANEL: (u32, u32) = (560, 360);
 /// Writes `panels` side by side in rows of two as one SVG at `path` (atomically). Panels without any
 /// point are drawn empty with "no data".
 pub fn write_panels(path: &Path, panels: &[Panel]) -> Result<(), EvalError> {
+    let svg = draw_panels(panels).map_err(plot_error(path))?;
+    Ok(anerf_data::atomic::write_bytes(path, svg.as_bytes())?)
+}
+
+/// The SVG text of [`write_panels`], for figures drawn on request (the viewer's live curves).
+pub fn panels_svg(panels: &[Panel]) -> Result<String, EvalError> {
+    draw_panels(panels).map_err(|e| EvalError::Draw(e.to_string()))
+}
+
+fn draw_panels(panels: &[Panel]) -> Result<String, DrawingAreaErrorKind<std::io::Error>> {
     let rows = panels.len().div_ceil(2).max(1) as u32;
     let cols = panels.len().clamp(1, 2) as u32;
     let mut svg = String::new();
     {
         let root =
             SVGBackend::with_string(&mut svg, (PANEL.0 * cols, PANEL.1 * rows)).into_drawing_area();
-        root.fill(&WHITE).map_err(plot_error(path))?;
+        root.fill(&WHITE)?;
         let areas = root.split_evenly((rows as usize, cols as usize));
         for (panel, area) in panels.iter().zip(&areas) {
-            draw_panel(panel, area).map_err(plot_error(path))?;
+            draw_panel(panel, area)?;
         }
-        root.present().map_err(plot_error(path))?;
+        root.present()?;
     }
-    Ok(anerf_data::atomic::write_bytes(path, svg.as_bytes())?)
+    Ok(svg)
 }
 
 type Area<'a> = DrawingArea<SVGBackend<'a>, plotters::coord::Shift>;
@@ -71,42 +81,13 @@ fn draw_panel(panel: &Panel, area: &Area) -> DrawResult {
         .margin(12)
         .x_label_area_size(36)
         .y_label_area_size(64);
+    // The two axis kinds are different coordinate types; one generic body draws on either.
     if panel.log_y {
         let mut chart = builder.build_cartesian_2d(x0..x1, (y0..y1).log_scale())?;
-        chart
-            .configure_mesh()
-            .x_desc(&panel.x_label)
-            .y_desc(&panel.y_label)
-            .draw()?;
-        for (i, c) in panel.curves.iter().enumerate() {
-            let color = COLORS[i % COLORS.len()];
-            chart
-                .draw_series(LineSeries::new(
-                    c.points.iter().copied().filter(keep),
-                    color,
-                ))?
-                .label(&c.name)
-                .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 16, y)], color));
-        }
-        legend(&mut chart, panel)?;
+        draw_curves(&mut chart, panel, keep)?;
     } else {
         let mut chart = builder.build_cartesian_2d(x0..x1, y0..y1)?;
-        chart
-            .configure_mesh()
-            .x_desc(&panel.x_label)
-            .y_desc(&panel.y_label)
-            .draw()?;
-        for (i, c) in panel.curves.iter().enumerate() {
-            let color = COLORS[i % COLORS.len()];
-            chart
-                .draw_series(LineSeries::new(
-                    c.points.iter().copied().filter(keep),
-                    color,
-                ))?
-                .label(&c.name)
-                .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 16, y)], color));
-        }
-        legend(&mut chart, panel)?;
+        draw_curves(&mut chart, panel, keep)?;
     }
     if all.is_empty() {
         area.draw_text(
@@ -116,6 +97,36 @@ fn draw_panel(panel: &Panel, area: &Area) -> DrawResult {
         )?;
     }
     Ok(())
+}
+
+/// The grid, axis labels, every curve of `panel` (the points `keep` accepts) and the legend.
+fn draw_curves<'a, X, Y>(
+    chart: &mut ChartContext<'a, SVGBackend<'a>, Cartesian2d<X, Y>>,
+    panel: &Panel,
+    keep: impl Fn(&(f64, f64)) -> bool + Copy,
+) -> DrawResult
+where
+    X: plotters::coord::ranged1d::Ranged<ValueType = f64>
+        + plotters::coord::ranged1d::ValueFormatter<f64>,
+    Y: plotters::coord::ranged1d::Ranged<ValueType = f64>
+        + plotters::coord::ranged1d::ValueFormatter<f64>,
+{
+    chart
+        .configure_mesh()
+        .x_desc(&panel.x_label)
+        .y_desc(&panel.y_label)
+        .draw()?;
+    for (i, c) in panel.curves.iter().enumerate() {
+        let color = COLORS[i % COLORS.len()];
+        chart
+            .draw_series(LineSeries::new(
+                c.points.iter().copied().filter(keep),
+                color,
+            ))?
+            .label(&c.name)
+            .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 16, y)], color));
+    }
+    legend(chart, panel)
 }
 
 /// The legend, when a panel has more than one curve.

@@ -257,16 +257,17 @@ pub fn per_view(records: &[ImageRecord]) -> Vec<(usize, [f64; 2])> {
 }
 
 /// Paths of the images saved for one record.
-struct SavedImages {
-    pred: PathBuf,
-    gt: PathBuf,
-    mask: PathBuf,
+pub struct SavedImages {
+    pub pred: PathBuf,
+    pub gt: PathBuf,
+    pub mask: PathBuf,
     /// The error heat map ([`crate::heatmap`]).
-    error: PathBuf,
+    pub error: PathBuf,
 }
 
 impl SavedImages {
-    fn new(dir: &Path, stem: &str) -> Self {
+    /// The images of the record `stem` ([`ImageRecord::stem`]) in the evaluation folder `dir`.
+    pub fn new(dir: &Path, stem: &str) -> Self {
         let images = dir.join("images");
         Self {
             pred: images.join(format!("{stem}_pred.png")),

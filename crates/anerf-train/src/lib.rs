@@ -16,3 +16,4 @@ pub mod run_dir;
 pub mod run_start;
 pub mod stage;
 pub mod training;
+pub mod view;

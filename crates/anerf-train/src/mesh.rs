@@ -4,7 +4,7 @@
 
 use anerf_core::geometry::skinning::{points_tensor, world_to_pose};
 use anerf_core::geometry::BlendWeightVolume;
-use anerf_core::geometry::{forward_lbs_point, Aabb, BoneTransforms, GlobalTransform};
+use anerf_core::geometry::{forward_lbs_points, Aabb, BoneTransforms, GlobalTransform};
 use anerf_core::mesh::{marching_cubes, ScalarGrid, TriMesh};
 use anerf_core::model::{AnimatableNerf, CanonicalInputs, FrameInputs};
 use anerf_core::tensor::to_host;
@@ -167,16 +167,10 @@ pub fn repose(
     bones: &BoneTransforms,
     global: &GlobalTransform,
 ) -> Result<Vec<Vec3>> {
-    let k = bones.len();
-    vertices
-        .iter()
-        .zip(weights.chunks(k))
-        .enumerate()
-        .map(|(i, (v, w))| {
-            let posed = forward_lbs_point(*v, w, bones).with_context(|| format!("vertex {i}"))?;
-            Ok(global.pose_to_world(posed))
-        })
-        .collect()
+    Ok(forward_lbs_points(vertices, weights, bones)?
+        .into_iter()
+        .map(|p| global.pose_to_world(p))
+        .collect())
 }
 
 /// A frame's posed body as mesh extraction needs it.

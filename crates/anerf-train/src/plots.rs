@@ -51,48 +51,55 @@ pub fn write_run_plots(run: &RunDir) -> Result<Vec<PathBuf>> {
     let lines = read_log(run)?;
     let mut written = Vec::new();
     for stage in [1, 2] {
-        if series(&lines, stage, "loss").is_empty() {
+        let Some(panels) = stage_panels(&lines, stage) else {
             continue;
-        }
-        let s = |key| series(&lines, stage, key);
-        let panels = if stage == 1 {
-            vec![
-                panel("stage 1 loss", "loss", true, vec![curve("loss", s("loss"))]),
-                panel(
-                    "stage 1 PSNR",
-                    "PSNR (dB)",
-                    false,
-                    vec![
-                        curve("training rays", s("psnr")),
-                        curve("validation view", s("validation_psnr")),
-                    ],
-                ),
-                panel(
-                    "stage 1 learning rate",
-                    "learning rate",
-                    true,
-                    vec![curve("lr", s("lr"))],
-                ),
-            ]
-        } else {
-            vec![
-                panel(
-                    "stage 2 consistency loss",
-                    "loss",
-                    true,
-                    vec![curve("loss", s("loss"))],
-                ),
-                panel(
-                    "stage 2 learning rate",
-                    "learning rate",
-                    true,
-                    vec![curve("lr", s("lr"))],
-                ),
-            ]
         };
         let path = run.plots().join(format!("stage{stage}.svg"));
         write_panels(&path, &panels)?;
         written.push(path);
     }
     Ok(written)
+}
+
+/// The panels of `stage`'s figure from the log lines, or `None` when the log has no step of it.
+pub fn stage_panels(lines: &[serde_json::Value], stage: u64) -> Option<Vec<Panel>> {
+    if series(lines, stage, "loss").is_empty() {
+        return None;
+    }
+    let s = |key| series(lines, stage, key);
+    Some(if stage == 1 {
+        vec![
+            panel("stage 1 loss", "loss", true, vec![curve("loss", s("loss"))]),
+            panel(
+                "stage 1 PSNR",
+                "PSNR (dB)",
+                false,
+                vec![
+                    curve("training rays", s("psnr")),
+                    curve("validation view", s("validation_psnr")),
+                ],
+            ),
+            panel(
+                "stage 1 learning rate",
+                "learning rate",
+                true,
+                vec![curve("lr", s("lr"))],
+            ),
+        ]
+    } else {
+        vec![
+            panel(
+                "stage 2 consistency loss",
+                "loss",
+                true,
+                vec![curve("loss", s("loss"))],
+            ),
+            panel(
+                "stage 2 learning rate",
+                "learning rate",
+                true,
+                vec![curve("lr", s("lr"))],
+            ),
+        ]
+    })
 }

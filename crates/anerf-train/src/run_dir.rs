@@ -77,6 +77,11 @@ impl RunDir {
         self.root.join("meshes")
     }
 
+    /// Exported avatars (`anerf export`).
+    pub fn exports(&self) -> PathBuf {
+        self.root.join("export")
+    }
+
     /// Writes the resolved config (atomically).
     pub fn write_config(&self, config: &ExperimentConfig) -> Result<()> {
         Ok(write_bytes(

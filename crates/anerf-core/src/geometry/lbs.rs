@@ -59,6 +59,35 @@ pub fn forward_lbs_point(
     Ok(blend_transforms(weights, transforms)?.transform_point3(x_canonical))
 }
 
+/// [`forward_lbs_point`] of every point (a mesh's vertices, canonical → pose space): point `i` takes the
+/// `K = transforms.len()` weights `weights[i·K..(i+1)·K]` (row-major, as body models store them). An error
+/// names the point.
+pub fn forward_lbs_points(
+    points: &[Vec3],
+    weights: &[f32],
+    transforms: &BoneTransforms,
+) -> Result<Vec<Vec3>, GeometryError> {
+    let k = transforms.len();
+    if weights.len() != points.len() * k {
+        return Err(GeometryError::WeightRows {
+            points: points.len(),
+            joints: k,
+            got: weights.len(),
+        });
+    }
+    points
+        .iter()
+        .zip(weights.chunks_exact(k))
+        .enumerate()
+        .map(|(index, (&x, w))| {
+            forward_lbs_point(x, w, transforms).map_err(|e| GeometryError::AtPoint {
+                index,
+                source: Box::new(e),
+            })
+        })
+        .collect()
+}
+
 /// Inverse LBS, pose space → canonical: `x_can = rot(M)⁻¹ (x_pose − t(M))`, with `M` blended from the
 /// observation-space weights. Fails when the blended rotation part is (nearly) singular.
 pub fn inverse_lbs_point(
@@ -137,6 +166,32 @@ pub(crate) mod tests {
                 assert!((back - x).length() < 1e-4, "{x} -> {posed} -> {back}");
             }
         }
+    }
+
+    #[test]
+    fn skinning_many_points_is_skinning_each_and_names_a_bad_one() {
+        let mut rng = TestRng(11);
+        let (skeleton, pose) = random_skeleton_and_pose(&mut rng);
+        let a = skeleton
+            .bone_transforms(&pose, CanonicalPose::TPose)
+            .unwrap();
+        let points: Vec<Vec3> = (0..30).map(|_| rng.vec3(1.0)).collect();
+        let mut weights: Vec<f32> = (0..30).flat_map(|_| rng.weights(24)).collect();
+        let all = forward_lbs_points(&points, &weights, &a).unwrap();
+        for (i, (x, p)) in points.iter().zip(&all).enumerate() {
+            let one = forward_lbs_point(*x, &weights[i * 24..(i + 1) * 24], &a).unwrap();
+            assert_eq!(*p, one, "point {i}");
+        }
+        assert!(matches!(
+            forward_lbs_points(&points, &weights[..24 * 29], &a),
+            Err(GeometryError::WeightRows { points: 30, joints: 24, got }) if got == 24 * 29
+        ));
+        weights[17 * 24 + 3] = f32::NAN;
+        let err = forward_lbs_points(&points, &weights, &a).unwrap_err();
+        assert!(
+            matches!(&err, GeometryError::AtPoint { index: 17, source } if matches!(**source, GeometryError::NonFinite { .. })),
+            "{err}"
+        );
     }
 
     #[test]

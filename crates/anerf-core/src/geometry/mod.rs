@@ -12,7 +12,9 @@ pub mod volume;
 
 pub use aabb::{Aabb, RayHit};
 pub use camera::{Camera, Distortion, PixelConvention, Ray};
-pub use lbs::{blend_transforms, forward_lbs_point, inverse_lbs_point, validate_weights};
+pub use lbs::{
+    blend_transforms, forward_lbs_point, forward_lbs_points, inverse_lbs_point, validate_weights,
+};
 pub use rotation::{axis_angle_to_matrix, matrix_to_axis_angle};
 pub use skeleton::{BoneTransforms, CanonicalPose, GlobalTransform, Pose, Skeleton};
 pub use skinning::BoneMatrices;

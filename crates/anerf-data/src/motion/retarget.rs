@@ -7,7 +7,7 @@
 //! body is Y-up and faces +Z, as SMPL's T-pose does.
 
 use anerf_core::geometry::{
-    forward_lbs_point, BoneTransforms, CanonicalPose, GlobalTransform, Pose, Skeleton,
+    forward_lbs_points, BoneTransforms, CanonicalPose, GlobalTransform, Pose, Skeleton,
 };
 use glam::{DQuat, DVec3, Vec3};
 
@@ -37,14 +37,8 @@ impl TargetBody<'_> {
 
     /// The canonical vertices skinned with bone transforms `bones` (canonical → pose space).
     pub fn skinned(&self, bones: &BoneTransforms) -> Result<Vec<Vec3>, String> {
-        self.vertices
-            .iter()
-            .enumerate()
-            .map(|(v, &x)| {
-                forward_lbs_point(x, self.weights.row(v), bones)
-                    .map_err(|e| format!("vertex {v}: {e}"))
-            })
-            .collect()
+        forward_lbs_points(self.vertices, self.weights.as_slice(), bones)
+            .map_err(|e| format!("skinning the canonical mesh: {e}"))
     }
 }
 

@@ -5,7 +5,7 @@
 use std::path::Path;
 use std::time::Instant;
 
-use anerf_core::geometry::{forward_lbs_point, Camera, CanonicalPose, GlobalTransform, Pose};
+use anerf_core::geometry::{forward_lbs_points, Camera, CanonicalPose, GlobalTransform, Pose};
 use anerf_core::mesh::TriMesh;
 use anerf_core::FrameId;
 use glam::Vec3;
@@ -255,14 +255,12 @@ fn pose_frame(
     let transforms = body.skeleton.bone_transforms(&pose, CanonicalPose::TPose)?;
     let rotation = pose.global.rotation();
     let posed = |b: &Body| -> Result<Vec<Vec3>, SynthError> {
-        Ok(b.mesh
-            .vertices
-            .iter()
-            .enumerate()
-            .map(|(v, &x)| {
-                forward_lbs_point(x, b.weights.row(v), &transforms).map(|p| rotation * p)
-            })
-            .collect::<Result<_, _>>()?)
+        Ok(
+            forward_lbs_points(&b.mesh.vertices, b.weights.as_slice(), &transforms)?
+                .into_iter()
+                .map(|p| rotation * p)
+                .collect(),
+        )
     };
     let seen = posed(surface)?;
     let floor = seen.iter().map(|p| p.z).fold(f32::INFINITY, f32::min);

@@ -49,7 +49,7 @@ pub fn export(run_path: &Path, job: &ExportJob, options: &JobOptions) -> Result<
     let path = job
         .out
         .clone()
-        .unwrap_or_else(|| run.root.join("export").join("avatar.glb"));
+        .unwrap_or_else(|| run.exports().join("avatar.glb"));
     if path.exists() && !job.overwrite {
         bail!(
             "{} exists; give --overwrite to replace it, or another --out",

@@ -50,6 +50,8 @@ pub enum Command {
     Plot(commands::plot::PlotArgs),
     /// Write a run as a skinned, animated glTF binary (.glb) for Blender, three.js, Unity, Unreal.
     Export(commands::export::ExportArgs),
+    /// Serve a local web page of a run (curves, evaluation images, videos, the avatar in 3D) on 127.0.0.1.
+    View(commands::view::ViewArgs),
     /// PSNR and SSIM of two images (with a mask: the paper's protocol).
     Compare(commands::compare::CompareArgs),
     /// Training-step time, throughput, render time and peak memory of each model preset.

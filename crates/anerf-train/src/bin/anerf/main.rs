@@ -74,6 +74,10 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
             commands::export::run(&a)?;
             false
         }
+        Command::View(a) => {
+            commands::view::run(&a)?;
+            false
+        }
         Command::Mesh(a) => {
             commands::mesh::run(&a)?;
             false

@@ -15,6 +15,7 @@ pub mod prepare;
 pub mod render;
 pub mod synth;
 pub mod train;
+pub mod view;
 
 use std::path::Path;
 
