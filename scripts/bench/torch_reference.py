@@ -230,7 +230,11 @@ def main():
     parser.add_argument("--points", type=int, default=65536)
     parser.add_argument("--steps", type=int, default=3, help="timed steps after one warm-up step")
     parser.add_argument("--threads", type=int, default=0, help="torch threads (0: PyTorch's default)")
+    parser.add_argument("--device", default="cpu", help="torch device: cpu, cuda, cuda:1, ...")
     args = parser.parse_args()
+    dev = torch.device(args.device)
+    if dev.type == "cuda" and not torch.cuda.is_available():
+        parser.error(f"--device {args.device}: this PyTorch sees no CUDA device")
     with open(args.config) as f:
         described = json.loads(f.readline())
     preset, cfg = described["preset"], described["model"]
@@ -248,9 +252,12 @@ def main():
     dims = (32, 32, 32)
     table = torch.rand(32 * 32 * 32, JOINTS + 1)
     table[:, :JOINTS] /= table[:, :JOINTS].sum(1, keepdim=True)
+    # Drawn on the CPU (the same numbers on every device), then moved.
+    points, prior, dirs, target, bones, table = (t.to(dev) for t in (points, prior, dirs, target, bones, table))
+    rows = torch.arange(n, device=dev).reshape(n, 1)
     box = 0.8
 
-    nerf, blend = CanonicalNerf(cfg), BlendField(cfg)
+    nerf, blend = CanonicalNerf(cfg).to(dev), BlendField(cfg).to(dev)
     params = list(nerf.parameters()) + list(blend.parameters())
     optim = torch.optim.Adam(params, lr=5e-4, eps=1e-8)
 
@@ -262,7 +269,7 @@ def main():
         density = density.masked_fill(~inside, 0.0)
         w_can = blend(canonical, 0, volume_weights(table, dims, -1.0, 2.0, canonical))
         d = density.detach()
-        mask = ((d > 0) | (torch.arange(n).reshape(n, 1) == d.argmax())).float()
+        mask = ((d > 0) | (rows == d.argmax())).float()
         diff = (w - w_can).abs()
         inner = diff.clamp(max=1.0)
         per = 0.5 * inner**2 + (diff - inner)
@@ -297,6 +304,9 @@ def main():
                 "load_before": load_before,
                 "torch": torch.__version__,
                 "threads": torch.get_num_threads(),
+                "device": str(dev),
+                "gpu": torch.cuda.get_device_name(dev) if dev.type == "cuda" else None,
+                "gpu_peak_mib": torch.cuda.max_memory_allocated(dev) / 2**20 if dev.type == "cuda" else None,
             }
         )
     )

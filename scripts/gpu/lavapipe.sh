@@ -64,7 +64,7 @@ fi
 version="$(zcat "$PREFIX/usr/share/doc/mesa-vulkan-drivers/changelog.Debian.gz" | head -1 | sed 's/^mesa (\([^)]*\)).*/\1/')"
 cd "$ROOT"
 log="$(mktemp)"
-for filter in "--test wgpu_backend" "--lib flex_and_wgpu"; do
+for filter in "--test gpu_backends" "--lib flex_and_gpu_backends"; do
     # shellcheck disable=SC2086 # $filter is two words on purpose
     CARGO_BUILD_JOBS="${CARGO_BUILD_JOBS:-1}" cargo test -p anerf-core --features wgpu $filter -- --nocapture \
         2>&1 | grep -v XDG_RUNTIME_DIR | tee -a "$log"

@@ -86,8 +86,12 @@ const TIMEOUT_MS = 40000;
       problems.push('the view filter offers no view');
     }
 
+    // Paused (the button a user presses), the page stops drawing, so the screenshot's frame comes at once
+    // even on a loaded machine.
     await page.evaluate(() => window.scrollTo(0, 0));
-    await page.screenshot({ path: screenshot });
+    await page.click('#play');
+    if ((await page.textContent('#play')) !== 'Play') problems.push('the pause button did not pause');
+    await page.screenshot({ path: screenshot, timeout: 60000 });
     if (consoleErrors.length) problems.push('console errors: ' + consoleErrors.join(' | '));
     console.log(JSON.stringify({ ok: problems.length === 0, avatar, curves, predictions, filtered, frames: state.avatarFrames, problems }));
   } catch (e) {

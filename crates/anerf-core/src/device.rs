@@ -1,5 +1,6 @@
 //! Run-time backend choice. Which backends exist is decided at build time by cargo features
-//! (`flex` always, `ndarray` by default, `wgpu` opt-in); which one runs is chosen here, e.g. from `--device`.
+//! (`flex` always, `ndarray` by default, `wgpu` and `cuda` opt-in); which one runs is chosen here, e.g. from
+//! `--device`.
 
 use std::fmt;
 use std::str::FromStr;
@@ -20,14 +21,17 @@ pub enum DeviceChoice {
     Ndarray,
     /// The default wgpu adapter (a GPU when one exists).
     Wgpu,
+    /// The first NVIDIA GPU through CUDA (CubeCL's CUDA runtime: the driver and NVRTC, loaded at run time).
+    Cuda,
 }
 
 impl DeviceChoice {
     /// Every choice, in the order they are listed to users.
-    pub const ALL: [DeviceChoice; 3] = [
+    pub const ALL: [DeviceChoice; 4] = [
         DeviceChoice::Flex,
         DeviceChoice::Ndarray,
         DeviceChoice::Wgpu,
+        DeviceChoice::Cuda,
     ];
 
     fn feature(self) -> &'static str {
@@ -35,6 +39,25 @@ impl DeviceChoice {
             DeviceChoice::Flex => "flex",
             DeviceChoice::Ndarray => "ndarray",
             DeviceChoice::Wgpu => "wgpu",
+            DeviceChoice::Cuda => "cuda",
+        }
+    }
+
+    /// A GPU backend: checked in a child process before use ([`probe`]).
+    pub fn is_gpu(self) -> bool {
+        matches!(self, DeviceChoice::Wgpu | DeviceChoice::Cuda)
+    }
+
+    /// What the backend needs on the machine beyond this binary, for error messages.
+    pub fn needs(self) -> Option<&'static str> {
+        match self {
+            DeviceChoice::Cuda => Some(
+                "CUDA needs an NVIDIA GPU with its driver (libcuda.so.1) and NVRTC 12 (libnvrtc.so.12, from \
+                 the CUDA toolkit or the nvidia-cuda-nvrtc-cu12 wheel PyTorch installs) on the library path \
+                 (LD_LIBRARY_PATH)",
+            ),
+            DeviceChoice::Wgpu => Some("wgpu needs a Vulkan, Metal, DirectX 12 or OpenGL driver"),
+            DeviceChoice::Flex | DeviceChoice::Ndarray => None,
         }
     }
 
@@ -47,6 +70,8 @@ impl DeviceChoice {
             DeviceChoice::Ndarray => Ok(Device::ndarray()),
             #[cfg(feature = "wgpu")]
             DeviceChoice::Wgpu => Ok(Device::wgpu(Default::default())),
+            #[cfg(feature = "cuda")]
+            DeviceChoice::Cuda => Ok(Device::cuda(0)),
             #[allow(unreachable_patterns)]
             other => Err(format!(
                 "device '{other}' is not compiled into this binary; rebuild with `--features {}`",
@@ -77,7 +102,9 @@ impl FromStr for DeviceChoice {
         Self::ALL
             .into_iter()
             .find(|c| c.feature() == s.to_ascii_lowercase())
-            .ok_or_else(|| format!("unknown device '{s}': expected one of flex, ndarray, wgpu"))
+            .ok_or_else(|| {
+                format!("unknown device '{s}': expected one of flex, ndarray, wgpu, cuda")
+            })
     }
 }
 
@@ -91,6 +118,7 @@ mod tests {
             assert_eq!(c.to_string().parse::<DeviceChoice>().unwrap(), c);
         }
         let err = "cuda9".parse::<DeviceChoice>().unwrap_err();
+        assert!(err.contains("cuda,") || err.ends_with("cuda"), "{err}");
         assert!(err.contains("cuda9") && err.contains("flex"), "{err}");
     }
 

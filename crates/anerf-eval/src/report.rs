@@ -235,7 +235,7 @@ impl EvalRecorder {
                     self.split,
                     self.records.len()
                 ),
-                &format!("mean {title} {unit}").trim_end().to_string(),
+                format!("mean {title} {unit}").trim_end(),
                 &bars,
             )?;
         }

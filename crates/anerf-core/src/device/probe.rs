@@ -54,9 +54,10 @@ pub enum ProbeError {
         source: std::io::Error,
     },
     #[error(
-        "device '{device}' failed its smoke test ({status}){}{}",
+        "device '{device}' failed its smoke test ({status}){}{}{}",
         found_note(.found),
-        stderr_tail(.stderr)
+        stderr_tail(.stderr),
+        needs_note(*.device)
     )]
     Failed {
         device: DeviceChoice,
@@ -66,9 +67,10 @@ pub enum ProbeError {
     },
     #[error(
         "device '{device}' crashed its smoke test: the probe process was killed by signal {signal} ({name}), \
-         typically a driver bug{}{}",
+         typically a driver bug{}{}{}",
         found_note(.found),
-        stderr_tail(.stderr)
+        stderr_tail(.stderr),
+        needs_note(*.device)
     )]
     Crashed {
         device: DeviceChoice,
@@ -89,6 +91,14 @@ pub enum ProbeError {
         timeout: Duration,
         found: Vec<String>,
     },
+}
+
+/// What the backend needs on the machine, for error messages.
+fn needs_note(device: DeviceChoice) -> String {
+    device
+        .needs()
+        .map(|n| format!("\n({n})"))
+        .unwrap_or_default()
 }
 
 /// The adapters a probe child found, for error messages.
@@ -155,6 +165,22 @@ pub fn smoke_test(device: &Device) -> Result<(), String> {
     Ok(())
 }
 
+/// Makes a panic anywhere in a probe child its report, and ends the child at once (a panicking backend
+/// thread would otherwise leave the main thread waiting). cudarc panics when it cannot load the CUDA
+/// driver or NVRTC; that message then reaches the parent's error.
+fn report_panics() {
+    std::panic::set_hook(Box::new(|info| {
+        let payload = info.payload();
+        let message = payload
+            .downcast_ref::<&str>()
+            .map(|s| s.to_string())
+            .or_else(|| payload.downcast_ref::<String>().cloned())
+            .unwrap_or_else(|| "a panic without a message".into());
+        eprintln!("{REPORT}panicked: {message}");
+        std::process::exit(1);
+    }));
+}
+
 /// When this process was started by [`probe_in_child`] (the [`PROBE_ENV`] variable names a backend), runs
 /// [`smoke_test`] on it and exits: status 0 when it passed, 1 with the reason on standard error otherwise.
 /// On standard output it lists the adapters found and names the one used. Does nothing in any other
@@ -166,6 +192,7 @@ pub fn exit_if_probe_child() {
     };
     // On lines of their own: the test harness has already printed `test <name> ... ` unterminated.
     println!();
+    report_panics();
     let outcome = name
         .to_string_lossy()
         .parse::<DeviceChoice>()
@@ -199,6 +226,15 @@ fn open_for_probe(choice: DeviceChoice) -> Result<(Device, String), String> {
             .init_with_setup()
             .map_err(|e| format!("initialising wgpu: {e}"))?;
         return Ok((device, describe_adapter(&setup.adapter.get_info())));
+    }
+    #[cfg(feature = "cuda")]
+    if choice == DeviceChoice::Cuda {
+        // Loads the driver library first, so that a missing one is reported before Burn starts threads.
+        let name = cudarc::driver::CudaContext::new(0)
+            .and_then(|context| context.name())
+            .map_err(|e| format!("opening CUDA device 0: {e:?}"))?;
+        println!("{FOUND}CUDA device 0: {name}");
+        return Ok((choice.device()?, format!("CUDA: {name}")));
     }
     Ok((choice.device()?, UNNAMED.to_string()))
 }
@@ -244,7 +280,7 @@ pub fn probe_in_child(choice: DeviceChoice, child: Command) -> Result<Option<Str
         device: choice,
         message,
     })?;
-    if choice != DeviceChoice::Wgpu {
+    if !choice.is_gpu() {
         return Ok(None);
     }
     run_child(choice, child).map(Some)
@@ -311,6 +347,16 @@ pub fn device_for_test(choice: DeviceChoice, test: &str) -> Option<Device> {
             None
         }
     }
+}
+
+/// [`device_for_test`] for every GPU backend (wgpu, CUDA): the devices that passed, in that order; a test
+/// runs its comparison on each. Empty (with each reason printed) on a machine without a working GPU backend.
+pub fn gpu_devices_for_test(test: &str) -> Vec<(DeviceChoice, Device)> {
+    DeviceChoice::ALL
+        .into_iter()
+        .filter(|c| c.is_gpu())
+        .filter_map(|c| device_for_test(c, test).map(|d| (c, d)))
+        .collect()
 }
 
 /// Runs `child` as a probe of `choice` (with [`PROBE_ENV`] set) and reads its outcome: the adapter it named
@@ -477,6 +523,37 @@ mod tests {
     fn a_child_that_exits_0_without_the_probe_line_did_not_run() {
         let err = shell("echo 'running 0 tests'").unwrap_err();
         assert!(matches!(err, ProbeError::NotRun { .. }), "{err:?}");
+    }
+
+    /// cudarc's words when the driver library is missing (`cudarc::panic_no_lib_found`).
+    const NO_CUDA: &str =
+        "Unable to dynamically load the \"cuda\" shared library - searched for library \
+                           names: [\"libcuda.so\", \"libcuda.so.1\"]";
+
+    #[test]
+    fn a_panic_in_a_probe_child_is_its_report_with_what_the_backend_needs() {
+        if std::env::var_os(PROBE_ENV).is_some() {
+            // The child: a backend that cannot load its driver.
+            report_panics();
+            panic!("{NO_CUDA}");
+        }
+        let mut child = Command::new(std::env::current_exe().unwrap());
+        child.args([
+            "device::probe::tests::a_panic_in_a_probe_child_is_its_report_with_what_the_backend_needs",
+            "--exact",
+            "--nocapture",
+        ]);
+        let err = run_child(DeviceChoice::Cuda, child).unwrap_err();
+        assert!(matches!(err, ProbeError::Failed { .. }), "{err:?}");
+        let message = err.to_string();
+        for part in [
+            "device 'cuda' failed",
+            "panicked: Unable to dynamically load the \"cuda\" shared library",
+            "libcuda.so.1",
+            "libnvrtc.so.12",
+        ] {
+            assert!(message.contains(part), "{part} missing from: {message}");
+        }
     }
 
     #[test]

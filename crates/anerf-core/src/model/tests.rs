@@ -538,81 +538,82 @@ fn occupancy_grid_matches_zeroing_samples_in_empty_cells() {
     );
 }
 
-/// The same image and the same parameter gradients on wgpu as on flex, where a wgpu adapter works (checked
-/// in a child process first; skipped with the reason printed where none does), for the tiny model with
-/// frequency encodings and with hash grids (the CubeCL kernels on wgpu, the CPU kernels on flex). Tolerance
-/// as in `tests/wgpu_backend.rs`: `|wgpu − flex| ≤ 1e-4 · (1 + |flex|)`, f32 sums in another order.
-#[cfg(feature = "wgpu")]
+/// The same image and the same parameter gradients on each GPU backend (wgpu, CUDA) as on flex, where it
+/// works (checked in a child process first; skipped with the reason printed where not), for the tiny model
+/// with frequency encodings and with hash grids (the CubeCL kernels on the GPU, the CPU kernels on flex).
+/// Tolerance as in `tests/gpu_backends.rs`: `|gpu − flex| ≤ 1e-4 · (1 + |flex|)`, f32 sums in another order.
+#[cfg(any(feature = "wgpu", feature = "cuda"))]
 #[test]
-fn flex_and_wgpu_render_and_differentiate_the_same() {
-    let Some(gpu) = crate::device::probe::device_for_test(
-        crate::DeviceChoice::Wgpu,
-        "model::tests::flex_and_wgpu_render_and_differentiate_the_same",
-    ) else {
-        return;
-    };
-    assert!(crate::kernels::hash_grid::extension::has_kernels(&gpu));
-    let grid = |levels, log2_table_size, finest_resolution| super::hash_grid::HashGridConfig {
-        levels,
-        log2_table_size,
-        features_per_level: 2,
-        base_resolution: 4,
-        finest_resolution,
-        half_extent: 1.3,
-    };
-    let hash_grids = ModelConfig {
-        encoding: PointEncoding::HashGrid {
-            nerf: grid(4, 10, 32),
-            blend: grid(3, 9, 16),
-        },
-        ..ModelPreset::Tiny.config()
-    };
-    for (name, config) in [
-        ("frequencies", ModelPreset::Tiny.config()),
-        ("hash grids", hash_grids),
-    ] {
-        let flex = cpu_device().autodiff();
-        flex.seed(6);
-        let model = tiny_model_with(config, &flex);
-        let on = |device: Device| {
-            let s = scene(&device, FrameCode::Training(1));
-            let model = model.clone().fork(&device);
-            let out = model.render(&s.rays, &s.frame, &s.canonical, None, true);
-            let weights = Tensor::<2>::from_floats([[0.7, -0.4, 1.1]], &device);
-            let objective = (out.rgb.clone() * weights).sum()
-                + out.consistency.unwrap().loss(model.config().consistency);
-            let grads = GradientsParams::from_grads(objective.backward(), &model);
-            let mut values = vec![to_host(out.rgb)];
-            values.extend(parameter_gradients(&model, &grads).into_iter().flatten());
-            values
+fn flex_and_gpu_backends_render_and_differentiate_the_same() {
+    for (choice, gpu) in crate::device::probe::gpu_devices_for_test(
+        "model::tests::flex_and_gpu_backends_render_and_differentiate_the_same",
+    ) {
+        eprintln!("on {choice}");
+        assert!(crate::kernels::hash_grid::extension::has_kernels(&gpu));
+        let grid = |levels, log2_table_size, finest_resolution| super::hash_grid::HashGridConfig {
+            levels,
+            log2_table_size,
+            features_per_level: 2,
+            base_resolution: 4,
+            finest_resolution,
+            half_extent: 1.3,
         };
-        let expected = on(flex.clone());
-        let got = on(gpu.clone().autodiff());
-        assert!(
-            expected[0].iter().any(|v| *v > 1e-3),
-            "{name}: the scene renders something"
-        );
-        assert_eq!(
-            got.len(),
-            expected.len(),
-            "{name}: the same parameters received gradients"
-        );
-        let mut overall = 0.0f32;
-        for (i, (g, e)) in got.iter().zip(&expected).enumerate() {
-            let what = if i == 0 {
-                format!("{name}: image")
-            } else {
-                format!("{name}: gradient {}", i - 1)
+        let hash_grids = ModelConfig {
+            encoding: PointEncoding::HashGrid {
+                nerf: grid(4, 10, 32),
+                blend: grid(3, 9, 16),
+            },
+            ..ModelPreset::Tiny.config()
+        };
+        for (name, config) in [
+            ("frequencies", ModelPreset::Tiny.config()),
+            ("hash grids", hash_grids),
+        ] {
+            let flex = cpu_device().autodiff();
+            flex.seed(6);
+            let model = tiny_model_with(config, &flex);
+            let on = |device: Device| {
+                let s = scene(&device, FrameCode::Training(1));
+                let model = model.clone().fork(&device);
+                let out = model.render(&s.rays, &s.frame, &s.canonical, None, true);
+                let weights = Tensor::<2>::from_floats([[0.7, -0.4, 1.1]], &device);
+                let objective = (out.rgb.clone() * weights).sum()
+                    + out.consistency.unwrap().loss(model.config().consistency);
+                let grads = GradientsParams::from_grads(objective.backward(), &model);
+                let mut values = vec![to_host(out.rgb)];
+                values.extend(parameter_gradients(&model, &grads).into_iter().flatten());
+                values
             };
-            let worst = anerf_testing::assert_close(
-                &format!("{what} (wgpu against flex)"),
-                g,
-                e,
-                anerf_testing::Tolerance::Relative(1e-4),
+            let expected = on(flex.clone());
+            let got = on(gpu.clone().autodiff());
+            assert!(
+                expected[0].iter().any(|v| *v > 1e-3),
+                "{name}: the scene renders something"
             );
-            overall = overall.max(worst as f32);
+            assert_eq!(
+                got.len(),
+                expected.len(),
+                "{name}: the same parameters received gradients"
+            );
+            let mut overall = 0.0f32;
+            for (i, (g, e)) in got.iter().zip(&expected).enumerate() {
+                let what = if i == 0 {
+                    format!("{name}: image")
+                } else {
+                    format!("{name}: gradient {}", i - 1)
+                };
+                let worst = anerf_testing::assert_close(
+                    &format!("{what} (wgpu against flex)"),
+                    g,
+                    e,
+                    anerf_testing::Tolerance::Relative(1e-4),
+                );
+                overall = overall.max(worst as f32);
+            }
+            eprintln!(
+                "{name}: worst relative difference over the image and gradients: {overall:.1e}"
+            );
         }
-        eprintln!("{name}: worst relative difference over the image and gradients: {overall:.1e}");
     }
 }
 

@@ -1,4 +1,4 @@
-//! CubeCL kernels of the hash-grid encoding for Burn's CubeCL backend (the `wgpu` feature): the same three
+//! CubeCL kernels of the hash-grid encoding for Burn's CubeCL backend (the `wgpu` and `cuda` features): the same three
 //! operations and the same arithmetic as the CPU [`super::cpu`] (hash, unit-cube clamping, corner
 //! weights), compiled just in time for the device.
 //!

@@ -1,6 +1,6 @@
-//! The CubeCL kernels on wgpu against the CPU kernels (flex), the plain-tensor reference and finite
-//! differences. Each test first checks wgpu in a child process (`crate::device::probe`) and returns,
-//! printing why, where no adapter works.
+//! The CubeCL kernels on each compiled GPU runtime (wgpu, CUDA) against the CPU kernels (flex), the
+//! plain-tensor reference and finite differences. Each test first checks every GPU backend in a child
+//! process (`crate::device::probe`) and runs on those that work, printing why for the others.
 //!
 //! Tolerances: the kernels compute in f32 like the CPU kernels, with the same formulas but other rounding
 //! (the device may contract `a·b + c` into one fused operation and divides to within 2.5 ulp in WGSL) and,
@@ -18,18 +18,16 @@ use super::cube::{self, AtomicScheme};
 use super::tests::{gradients, points, spec_with, wave};
 use super::*;
 use crate::device::cpu_device;
-use crate::device::probe::device_for_test;
+use crate::device::probe::gpu_devices_for_test;
 use crate::model::hash_grid::encode_reference;
 use crate::tensor::{from_rows, to_host};
 use crate::DeviceChoice;
 use anerf_testing::{assert_close, Tolerance};
 
-/// The wgpu device for the test at `path` (under `kernels::hash_grid::cube_tests::`), or `None` (printed).
-fn gpu(test: &str) -> Option<Device> {
-    device_for_test(
-        DeviceChoice::Wgpu,
-        &format!("kernels::hash_grid::cube_tests::{test}"),
-    )
+/// The GPU devices (wgpu, CUDA) for the test at `path` (under `kernels::hash_grid::cube_tests::`) that
+/// pass the probe; each one missing is printed with the reason.
+fn gpus(test: &str) -> Vec<(DeviceChoice, Device)> {
+    gpu_devices_for_test(&format!("kernels::hash_grid::cube_tests::{test}"))
 }
 
 /// A test table `[L·T, F]` of deterministic values in `[−1, 1]`.
@@ -39,72 +37,72 @@ fn table_values(spec: &GridSpec) -> Vec<f32> {
 
 #[test]
 fn cube_encode_matches_flex_and_the_reference() {
-    let Some(gpu) = gpu("cube_encode_matches_flex_and_the_reference") else {
-        return;
-    };
-    assert!(extension::has_kernels(&gpu) && extension::has_kernels(&gpu.clone().autodiff()));
-    for features in [2, 3] {
-        let spec = spec_with(features);
-        let n = 300;
-        // Points in [−1.2, 1.2]³: some outside the grid's [−1, 1]³ read its clamped border.
-        let p = points(n);
-        assert!(p.iter().any(|v| v.abs() > 1.0) && p.iter().any(|v| v.abs() < 1.0));
-        let table = table_values(&spec);
-        let encode_on = |device: &Device, kernels: bool| {
-            let p = from_rows(&p, n, 3, device);
-            let t = from_rows(&table, spec.table_rows(), spec.features, device);
-            to_host(if kernels {
-                extension::encode(p, t, &spec)
-            } else {
-                encode_reference(p, t, &spec)
-            })
-        };
-        let got = encode_on(&gpu, true);
-        assert_eq!(got.len(), n * spec.output_dim());
-        let what = |against: &str| format!("F = {features}: encoding vs {against}");
-        assert_close(
-            &what("flex"),
-            &got,
-            &encode_on(&cpu_device(), true),
-            Tolerance::Relative(1e-5),
-        );
-        assert_close(
-            &what("reference on wgpu"),
-            &got,
-            &encode_on(&gpu, false),
-            Tolerance::Relative(1e-5),
-        );
+    for (choice, gpu) in gpus("cube_encode_matches_flex_and_the_reference") {
+        eprintln!("on {choice}");
+        assert!(extension::has_kernels(&gpu) && extension::has_kernels(&gpu.clone().autodiff()));
+        for features in [2, 3] {
+            let spec = spec_with(features);
+            let n = 300;
+            // Points in [−1.2, 1.2]³: some outside the grid's [−1, 1]³ read its clamped border.
+            let p = points(n);
+            assert!(p.iter().any(|v| v.abs() > 1.0) && p.iter().any(|v| v.abs() < 1.0));
+            let table = table_values(&spec);
+            let encode_on = |device: &Device, kernels: bool| {
+                let p = from_rows(&p, n, 3, device);
+                let t = from_rows(&table, spec.table_rows(), spec.features, device);
+                to_host(if kernels {
+                    extension::encode(p, t, &spec)
+                } else {
+                    encode_reference(p, t, &spec)
+                })
+            };
+            let got = encode_on(&gpu, true);
+            assert_eq!(got.len(), n * spec.output_dim());
+            let what = |against: &str| format!("F = {features}: encoding vs {against}");
+            assert_close(
+                &what("flex"),
+                &got,
+                &encode_on(&cpu_device(), true),
+                Tolerance::Relative(1e-5),
+            );
+            assert_close(
+                &what("reference on wgpu"),
+                &got,
+                &encode_on(&gpu, false),
+                Tolerance::Relative(1e-5),
+            );
+        }
     }
 }
 
 #[test]
 fn cube_gradients_match_flex_and_the_reference() {
-    let Some(gpu) = gpu("cube_gradients_match_flex_and_the_reference") else {
-        return;
-    };
-    let gpu = gpu.autodiff();
-    for features in [2, 3] {
-        let (gp, gt) = gradients(&gpu, true, 150, features);
-        let (fp, ft) = gradients(&cpu_device().autodiff(), true, 150, features);
-        let (rp, rt) = gradients(&gpu, false, 150, features);
-        // Points outside the grid have no gradient along the clamped axes; some exist in the sample.
-        assert!(gp.contains(&0.0) && gp.iter().any(|&v| v != 0.0));
-        assert!(gt.iter().any(|&v| v != 0.0));
-        let what = |of: &str, against: &str| format!("F = {features}: d/d{of} vs {against}");
-        assert_close(&what("points", "flex"), &gp, &fp, Tolerance::Relative(1e-3));
-        assert_close(
-            &what("points", "reference on wgpu"),
-            &gp,
-            &rp,
-            Tolerance::Relative(1e-3),
-        );
-        assert_close(&what("table", "flex"), &gt, &ft, Tolerance::Relative(1e-4));
-        assert_close(
-            &what("table", "reference on wgpu"),
-            &gt,
-            &rt,
-            Tolerance::Relative(1e-4),
-        );
+    for (choice, gpu) in gpus("cube_gradients_match_flex_and_the_reference") {
+        eprintln!("on {choice}");
+        let gpu = gpu.autodiff();
+        for features in [2, 3] {
+            let (gp, gt) = gradients(&gpu, true, 150, features);
+            let (fp, ft) = gradients(&cpu_device().autodiff(), true, 150, features);
+            let (rp, rt) = gradients(&gpu, false, 150, features);
+            // Points outside the grid have no gradient along the clamped axes; some exist in the sample.
+            assert!(gp.contains(&0.0) && gp.iter().any(|&v| v != 0.0));
+            assert!(gt.iter().any(|&v| v != 0.0));
+            let what = |of: &str, against: &str| format!("F = {features}: d/d{of} vs {against}");
+            assert_close(&what("points", "flex"), &gp, &fp, Tolerance::Relative(1e-3));
+            assert_close(
+                &what("points", "reference on wgpu"),
+                &gp,
+                &rp,
+                Tolerance::Relative(1e-3),
+            );
+            assert_close(&what("table", "flex"), &gt, &ft, Tolerance::Relative(1e-4));
+            assert_close(
+                &what("table", "reference on wgpu"),
+                &gt,
+                &rt,
+                Tolerance::Relative(1e-4),
+            );
+        }
     }
 }
 
@@ -161,24 +159,24 @@ fn cpu_table_grad(p: &[f32], grad: &[f32], spec: &GridSpec) -> Vec<f32> {
 /// per level, so each of its entries must read exactly 4096 (an integer sum, exact in f32 in any order).
 #[test]
 fn cube_table_gradient_loses_no_contended_add() {
-    let Some(gpu) = gpu("cube_table_gradient_loses_no_contended_add") else {
-        return;
-    };
-    let spec = spec_with(2);
-    let n = 4096;
-    let p = vec![0.0; 3 * n];
-    let grad = vec![1.0; n * spec.output_dim()];
-    let expected = cpu_table_grad(&p, &grad, &spec);
-    let full = expected.iter().filter(|&&v| v == n as f32).count();
-    assert_eq!(full, spec.output_dim(), "one row of F entries per level");
-    assert_eq!(expected.iter().sum::<f32>(), (n * spec.output_dim()) as f32);
-    for scheme in atomic_schemes(&gpu) {
-        let got = gpu_table_grad(&gpu, &p, &grad, &spec, scheme);
-        if let Some(r) = (0..expected.len()).find(|&r| got[r] != expected[r]) {
-            panic!(
-                "{scheme:?}: table gradient {r} is {} on wgpu, {} on flex",
-                got[r], expected[r]
-            );
+    for (choice, gpu) in gpus("cube_table_gradient_loses_no_contended_add") {
+        eprintln!("on {choice}");
+        let spec = spec_with(2);
+        let n = 4096;
+        let p = vec![0.0; 3 * n];
+        let grad = vec![1.0; n * spec.output_dim()];
+        let expected = cpu_table_grad(&p, &grad, &spec);
+        let full = expected.iter().filter(|&&v| v == n as f32).count();
+        assert_eq!(full, spec.output_dim(), "one row of F entries per level");
+        assert_eq!(expected.iter().sum::<f32>(), (n * spec.output_dim()) as f32);
+        for scheme in atomic_schemes(&gpu) {
+            let got = gpu_table_grad(&gpu, &p, &grad, &spec, scheme);
+            if let Some(r) = (0..expected.len()).find(|&r| got[r] != expected[r]) {
+                panic!(
+                    "{scheme:?}: table gradient {r} is {} on wgpu, {} on flex",
+                    got[r], expected[r]
+                );
+            }
         }
     }
 }
@@ -192,35 +190,35 @@ fn cube_table_gradient_loses_no_contended_add() {
 /// weight; [`cube_table_gradient_loses_no_contended_add`] checks that no add is lost.
 #[test]
 fn cube_table_gradient_matches_flex_with_either_atomic_add() {
-    let Some(gpu) = gpu("cube_table_gradient_matches_flex_with_either_atomic_add") else {
-        return;
-    };
-    let spec = spec_with(2);
-    let spread = 1000;
-    let mut p = points(spread);
-    p.extend(points(spread).iter().map(|v| 0.3 + 0.02 * v));
-    let n = 2 * spread;
-    let grad = wave(n * spec.output_dim(), 0.91);
-    let abs_grad: Vec<f32> = grad.iter().map(|v| v.abs()).collect();
-    let expected = cpu_table_grad(&p, &grad, &spec);
-    let magnitude = cpu_table_grad(&p, &abs_grad, &spec);
-    assert!(magnitude.iter().any(|&m| m > 50.0), "the adds contend");
-    let bound: Vec<f32> = magnitude
-        .iter()
-        .map(|m| 2.0 * 8.0 * n as f32 * UNIT_ROUNDOFF * m)
-        .collect();
-    for scheme in atomic_schemes(&gpu) {
-        let got = gpu_table_grad(&gpu, &p, &grad, &spec, scheme);
-        assert_eq!(got.len(), expected.len());
-        let mut worst = 0.0f32;
-        for (r, ((g, e), b)) in got.iter().zip(&expected).zip(&bound).enumerate() {
-            assert!(
-                (g - e).abs() <= *b,
-                "{scheme:?}: table gradient {r} is {g} on wgpu, {e} on flex (bound {b:e})"
-            );
-            worst = worst.max((g - e).abs() / b.max(f32::MIN_POSITIVE));
+    for (choice, gpu) in gpus("cube_table_gradient_matches_flex_with_either_atomic_add") {
+        eprintln!("on {choice}");
+        let spec = spec_with(2);
+        let spread = 1000;
+        let mut p = points(spread);
+        p.extend(points(spread).iter().map(|v| 0.3 + 0.02 * v));
+        let n = 2 * spread;
+        let grad = wave(n * spec.output_dim(), 0.91);
+        let abs_grad: Vec<f32> = grad.iter().map(|v| v.abs()).collect();
+        let expected = cpu_table_grad(&p, &grad, &spec);
+        let magnitude = cpu_table_grad(&p, &abs_grad, &spec);
+        assert!(magnitude.iter().any(|&m| m > 50.0), "the adds contend");
+        let bound: Vec<f32> = magnitude
+            .iter()
+            .map(|m| 2.0 * 8.0 * n as f32 * UNIT_ROUNDOFF * m)
+            .collect();
+        for scheme in atomic_schemes(&gpu) {
+            let got = gpu_table_grad(&gpu, &p, &grad, &spec, scheme);
+            assert_eq!(got.len(), expected.len());
+            let mut worst = 0.0f32;
+            for (r, ((g, e), b)) in got.iter().zip(&expected).zip(&bound).enumerate() {
+                assert!(
+                    (g - e).abs() <= *b,
+                    "{scheme:?}: table gradient {r} is {g} on wgpu, {e} on flex (bound {b:e})"
+                );
+                worst = worst.max((g - e).abs() / b.max(f32::MIN_POSITIVE));
+            }
+            eprintln!("{scheme:?}: worst difference {worst:.1e} of the bound");
         }
-        eprintln!("{scheme:?}: worst difference {worst:.1e} of the bound");
     }
 }
 
@@ -231,60 +229,60 @@ fn cube_table_gradient_matches_flex_with_either_atomic_add() {
 /// |fd|)` allowed.
 #[test]
 fn cube_point_gradient_matches_finite_differences() {
-    let Some(gpu) = gpu("cube_point_gradient_matches_finite_differences") else {
-        return;
-    };
-    let spec = super::tests::config().spec();
-    let n = 12;
-    let base = points(n);
-    let table = table_values(&spec);
-    let coeff = wave(n * spec.output_dim(), 0.91);
+    for (choice, gpu) in gpus("cube_point_gradient_matches_finite_differences") {
+        eprintln!("on {choice}");
+        let spec = super::tests::config().spec();
+        let n = 12;
+        let base = points(n);
+        let table = table_values(&spec);
+        let coeff = wave(n * spec.output_dim(), 0.91);
 
-    let device = gpu.clone().autodiff();
-    let p = from_rows(&base, n, 3, &device).require_grad();
-    let t = from_rows(&table, spec.table_rows(), spec.features, &device);
-    let c = from_rows(&coeff, n, spec.output_dim(), &device);
-    let grads = (extension::encode(p.clone(), t, &spec) * c)
-        .sum()
-        .backward();
-    let analytic = to_host(p.grad(&grads).expect("points gradient"));
-
-    // Every perturbed copy of the points (+h and −h along each of the 3n coordinates) in one batch.
-    let h = 1e-2f32;
-    let mut batch = Vec::with_capacity(6 * n * 3 * n);
-    for i in 0..3 * n {
-        for sign in [1.0, -1.0] {
-            let mut moved = base.clone();
-            moved[i] += sign * h;
-            batch.extend(moved);
-        }
-    }
-    let copies = 6 * n;
-    let encoded = to_host(extension::encode(
-        from_rows(&batch, copies * n, 3, &gpu),
-        from_rows(&table, spec.table_rows(), spec.features, &gpu),
-        &spec,
-    ));
-    let objective = |copy: usize| -> f64 {
-        let width = n * spec.output_dim();
-        encoded[copy * width..(copy + 1) * width]
-            .iter()
-            .zip(&coeff)
-            .map(|(a, b)| *a as f64 * *b as f64)
+        let device = gpu.clone().autodiff();
+        let p = from_rows(&base, n, 3, &device).require_grad();
+        let t = from_rows(&table, spec.table_rows(), spec.features, &device);
+        let c = from_rows(&coeff, n, spec.output_dim(), &device);
+        let grads = (extension::encode(p.clone(), t, &spec) * c)
             .sum()
-    };
-    let mut outside = 0;
-    for i in 0..3 * n {
-        let fd = (objective(2 * i) - objective(2 * i + 1)) / (2.0 * h as f64);
+            .backward();
+        let analytic = to_host(p.grad(&grads).expect("points gradient"));
+
+        // Every perturbed copy of the points (+h and −h along each of the 3n coordinates) in one batch.
+        let h = 1e-2f32;
+        let mut batch = Vec::with_capacity(6 * n * 3 * n);
+        for i in 0..3 * n {
+            for sign in [1.0, -1.0] {
+                let mut moved = base.clone();
+                moved[i] += sign * h;
+                batch.extend(moved);
+            }
+        }
+        let copies = 6 * n;
+        let encoded = to_host(extension::encode(
+            from_rows(&batch, copies * n, 3, &gpu),
+            from_rows(&table, spec.table_rows(), spec.features, &gpu),
+            &spec,
+        ));
+        let objective = |copy: usize| -> f64 {
+            let width = n * spec.output_dim();
+            encoded[copy * width..(copy + 1) * width]
+                .iter()
+                .zip(&coeff)
+                .map(|(a, b)| *a as f64 * *b as f64)
+                .sum()
+        };
+        let mut outside = 0;
+        for i in 0..3 * n {
+            let fd = (objective(2 * i) - objective(2 * i + 1)) / (2.0 * h as f64);
+            assert!(
+                (fd - analytic[i] as f64).abs() < 1e-2 * (1.0 + fd.abs()),
+                "d/dx {i}: finite difference {fd}, wgpu kernel {}",
+                analytic[i]
+            );
+            outside += usize::from(base[i].abs() > 1.0);
+        }
         assert!(
-            (fd - analytic[i] as f64).abs() < 1e-2 * (1.0 + fd.abs()),
-            "d/dx {i}: finite difference {fd}, wgpu kernel {}",
-            analytic[i]
+            outside > 0 && analytic.iter().any(|v| v.abs() > 1.0),
+            "the sample has clamped coordinates and non-trivial gradients"
         );
-        outside += usize::from(base[i].abs() > 1.0);
     }
-    assert!(
-        outside > 0 && analytic.iter().any(|v| v.abs() > 1.0),
-        "the sample has clamped coordinates and non-trivial gradients"
-    );
 }

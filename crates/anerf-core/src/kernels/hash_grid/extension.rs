@@ -1,5 +1,5 @@
 //! The hash-grid encoding as a Burn backend extension: the flex backend runs the CPU [`super::cpu`],
-//! the CubeCL backend (with the `wgpu` feature) the kernels of `super::cube`; the autodiff backend wraps
+//! the CubeCL backend (with the `wgpu` or `cuda` feature) the kernels of `super::cube`; the autodiff backend wraps
 //! either with a hand-written backward pass (table gradient and point gradient). Other backends use
 //! [`crate::model::hash_grid::encode_reference`] (see [`has_kernels`]).
 
@@ -18,7 +18,7 @@ use super::{cpu, GridSpec};
 use crate::kernels::flex::{dims, tensor as flex_tensor, values};
 
 /// The encoding's primitive operations (all tensors `f32`, row-major; see [`super::cpu`] for shapes).
-#[backend_extension(Flex, Cube: cfg(feature = "wgpu"), Autodiff)]
+#[backend_extension(Flex, Cube: cfg(any(feature = "wgpu", feature = "cuda")), Autodiff)]
 pub trait HashGridBackend: burn::backend::Backend {
     /// `[N, 3]` points and the `[L·T, F]` table → `[N, L·F]` features.
     fn hash_grid_encode(
@@ -56,12 +56,12 @@ pub trait HashGridBackend: burn::backend::Backend {
     }
 }
 
-/// Whether `device` runs the hand-written kernels: the flex backend, and with the `wgpu` feature the
-/// CubeCL backend (whose only runtime in this build is wgpu); with or without autodiff.
+/// Whether `device` runs the hand-written kernels: the flex backend, and with the `wgpu` or `cuda` feature
+/// the CubeCL backend (its runtimes, wgpu and CUDA, share the kernels); with or without autodiff.
 pub fn has_kernels(device: &Device) -> bool {
     match device.as_dispatch().clone().inner() {
         DispatchDevice::Flex(_) => true,
-        #[cfg(feature = "wgpu")]
+        #[cfg(any(feature = "wgpu", feature = "cuda"))]
         DispatchDevice::Cube(_) => true,
         #[allow(unreachable_patterns)]
         _ => false,

@@ -1,10 +1,10 @@
 //! The hash-grid encoding's kernels ([`crate::model::hash_grid`] holds the learned module): CPU kernels on
-//! plain slices ([`cpu`]), CubeCL kernels for the wgpu backend (`cube`, with the `wgpu` feature) and the Burn
+//! plain slices ([`cpu`]), CubeCL kernels for Burn's CubeCL backend (`cube`, with the `wgpu` or `cuda` feature) and the Burn
 //! backend extension that routes a tensor operation to one of them and supplies the backward pass
 //! ([`extension`]).
 
 pub mod cpu;
-#[cfg(feature = "wgpu")]
+#[cfg(any(feature = "wgpu", feature = "cuda"))]
 mod cube;
 pub mod extension;
 
@@ -49,5 +49,5 @@ impl GridSpec {
 #[cfg(test)]
 pub(crate) mod tests;
 
-#[cfg(all(test, feature = "wgpu"))]
+#[cfg(all(test, any(feature = "wgpu", feature = "cuda")))]
 mod cube_tests;

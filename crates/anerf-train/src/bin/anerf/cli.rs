@@ -61,7 +61,7 @@ pub enum Command {
 /// Options every command that computes takes.
 #[derive(Debug, Clone, Args)]
 pub struct Common {
-    /// Compute backend (flex, ndarray, wgpu); overrides the config's `device`.
+    /// Compute backend (flex, ndarray, wgpu, cuda); overrides the config's `device`.
     #[arg(long)]
     pub device: Option<DeviceChoice>,
     /// Override a config value, e.g. `--set train.iterations=1000` (repeatable).

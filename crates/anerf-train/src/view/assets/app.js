@@ -145,6 +145,7 @@ $('scrub').addEventListener('input', (e) => {
   if (!state.view) return;
   state.view.playing = false; $('play').textContent = 'Play';
   state.view.time = (Number(e.target.value) / 1000) * state.view.duration;
+  state.view.dirty = true;
 });
 $('avatar-file').addEventListener('change', () => { state.avatar = null; showAvatar(state.index); });
 poll();

@@ -159,6 +159,9 @@ export class GlbView {
     this.gl = gl; this.canvas = canvas; this.onFrame = onFrame;
     this.yaw = 0.6; this.pitch = 0.15; this.zoom = 1; this.playing = true; this.time = 0; this.duration = 0;
     this.frames = 0; this.scene = null;
+    // Set when the picture must be drawn again though the animation does not play (orbit, zoom, scrub).
+    this.dirty = true;
+    new ResizeObserver(() => { this.dirty = true; }).observe(canvas);
     let drag = null;
     canvas.addEventListener('pointerdown', (e) => { drag = [e.clientX, e.clientY]; canvas.setPointerCapture(e.pointerId); });
     canvas.addEventListener('pointerup', () => { drag = null; });
@@ -167,16 +170,23 @@ export class GlbView {
       this.yaw -= (e.clientX - drag[0]) * 0.01;
       this.pitch = Math.max(-1.4, Math.min(1.4, this.pitch + (e.clientY - drag[1]) * 0.01));
       drag = [e.clientX, e.clientY];
+      this.dirty = true;
     });
     canvas.addEventListener('wheel', (e) => {
       e.preventDefault();
       this.zoom = Math.max(0.2, Math.min(5, this.zoom * Math.exp(e.deltaY * 0.001)));
+      this.dirty = true;
     }, { passive: false });
     let last = performance.now();
+    // Draws only when the picture changes: a paused view costs nothing.
     const tick = (now) => {
-      if (this.scene && this.playing && this.duration > 0) this.time = (this.time + (now - last) / 1000) % this.duration;
+      const advance = this.scene && this.playing && this.duration > 0;
+      if (advance) this.time = (this.time + (now - last) / 1000) % this.duration;
       last = now;
-      if (this.scene) this.draw();
+      if (this.scene && (advance || this.dirty)) {
+        this.dirty = false;
+        this.draw();
+      }
       requestAnimationFrame(tick);
     };
     requestAnimationFrame(tick);
@@ -189,6 +199,7 @@ export class GlbView {
     const { json, bin } = parseGlb(await response.arrayBuffer());
     this.scene = this.build(json, bin);
     this.time = 0;
+    this.dirty = true;
   }
 
   build(gltf, bin) {

@@ -1,0 +1,151 @@
+#!/usr/bin/env bash
+# The GPU device check: one prepared script for a machine with an NVIDIA GPU, CUDA's driver and PyTorch but
+# no Rust toolchain. Given the bundle scripts/gpu/bundle.sh makes on a CPU machine (a stripped release
+# `anerf` built with the cuda and wgpu features, and the GPU kernel test binary), it runs
+#
+#   1. the GPU-vs-flex kernel tests (values and gradients; each backend skipped with its reason when absent),
+#   2. `anerf bench` on every device of DEVICES for the `fast` and `paper` presets,
+#   3. the demo end to end on the first device,
+#   4. scripts/bench/torch_reference.py on the same networks and device (when PyTorch is there),
+#
+# and writes figures.json (every figure, with the GPU's name) and check.log into OUT. Each step has a time
+# limit and a failed step is recorded, not fatal, so one run brings back everything that worked. The whole
+# check is sized for under 8 minutes on one GPU.
+#
+# usage: scripts/gpu/device_check.sh OUT
+# environment:
+#   BUNDLE    folder with `anerf` and `gpu_kernels` (default: target/gpu-bundle)
+#   DEVICES   devices to measure, first one runs the demo (default: "cuda wgpu")
+#   PRESETS   bench presets (default: "fast paper"); POINTS, STEPS: points per step, timed steps
+#   DEMO      1 to run the demo (default 1); PYTHON: the interpreter with torch (default python3)
+# On a machine without a GPU (DEVICES=flex) the same steps run on the CPU: that is how the script itself is
+# tested (crates/anerf-train/tests/device_check.rs).
+set -uo pipefail
+cd "$(dirname "$0")/../.."
+
+out=${1:?usage: $0 OUT}
+bundle=${BUNDLE:-target/gpu-bundle}
+devices=${DEVICES:-cuda wgpu}
+presets=${PRESETS:-fast paper}
+points=${POINTS:-65536}
+steps=${STEPS:-5}
+demo=${DEMO:-1}
+python=${PYTHON:-python3}
+anerf="$bundle/anerf"
+kernels="$bundle/gpu_kernels"
+
+mkdir -p "$out"
+log="$out/check.log"
+steps_file="$out/steps.jsonl"
+: >"$log"
+: >"$steps_file"
+work=$(mktemp -d)
+trap 'rm -rf "$work"' EXIT
+
+say() { echo "[$(date +%H:%M:%S)] $*" | tee -a "$log" >&2; }
+
+# Runs one step under a time limit: `step NAME LIMIT_S OUTPUT_FILE command...`. The command's stdout goes
+# to OUTPUT_FILE, its stderr to the log; a line of steps.jsonl records name, status and seconds.
+step() {
+    local name=$1 limit=$2 output=$3
+    shift 3
+    say "start $name: $*"
+    local start status
+    start=$(date +%s%N)
+    timeout --kill-after=10 "$limit" "$@" >"$output" 2>>"$log"
+    status=$?
+    local ms=$(( ($(date +%s%N) - start) / 1000000 ))
+    local seconds
+    seconds=$(printf '%d.%03d' $((ms / 1000)) $((ms % 1000)))
+    local outcome=passed
+    [ $status -eq 124 ] || [ $status -eq 137 ] && outcome=timed_out
+    [ $status -ne 0 ] && [ "$outcome" = passed ] && outcome=failed
+    printf '{"step": "%s", "outcome": "%s", "status": %d, "seconds": %s, "output": "%s"}\n' \
+        "$name" "$outcome" "$status" "$seconds" "$(basename "$output")" >>"$steps_file"
+    say "end $name: $outcome (status $status) in ${seconds%.*} s"
+    return $status
+}
+
+# Records a step that could not run here, with why.
+skipped() {
+    say "skip $1: $2"
+    printf '{"step": "%s", "outcome": "skipped", "reason": "%s", "status": 0, "seconds": 0, "output": ""}\n' \
+        "$1" "$2" >>"$steps_file"
+}
+
+if [ ! -x "$anerf" ]; then
+    say "error: no anerf binary at $anerf (make the bundle with scripts/gpu/bundle.sh, or set BUNDLE)"
+    exit 1
+fi
+
+# The machine.
+{
+    nvidia-smi --query-gpu=name,driver_version,memory.total --format=csv,noheader 2>/dev/null || echo "no nvidia-smi"
+} >"$out/gpu.txt"
+say "GPU: $(head -1 "$out/gpu.txt"); CPU: $(nproc) cores"
+
+# 1. Kernel tests against flex (the test binary skips a backend that is not there, naming why).
+if [ -x "$kernels" ]; then
+    step kernel_tests 240 "$out/kernel_tests.txt" "$kernels" --test-threads=1 --nocapture
+else
+    skipped kernel_tests "no test binary at $kernels"
+fi
+
+# 2. Benchmarks: one process per device and preset (a failure on one leaves the others).
+for device in $devices; do
+    for preset in $presets; do
+        render=0
+        [ "$preset" = fast ] && render=512
+        step "bench_${device}_${preset}" 150 "$out/bench_${device}_${preset}.json" \
+            "$anerf" bench --device "$device" --presets "$preset" --points "$points" --steps "$steps" \
+            --render-size "$render" --subject "$work/subject" --json
+    done
+done
+
+# 3. The demo end to end on the first device.
+first=${devices%% *}
+if [ "$demo" = 1 ]; then
+    step "demo_${first}" 240 "$out/demo_${first}.txt" "$anerf" demo --device "$first" --out "$work/demo" --quiet
+    cp "$work/demo/run/eval/novel-view/summary.json" "$out/demo_novel_view.json" 2>/dev/null
+    cp "$work/demo/run/eval/novel-pose/summary.json" "$out/demo_novel_pose.json" 2>/dev/null
+fi
+
+# 4. PyTorch on the same networks and device.
+torch_device=$first
+[ "$first" = wgpu ] && torch_device=cuda
+if "$python" -c "import torch" 2>/dev/null; then
+    for preset in $presets; do
+        "$anerf" bench --describe --presets "$preset" >"$work/$preset.json" 2>>"$log"
+        step "torch_${torch_device}_${preset}" 120 "$out/torch_${torch_device}_${preset}.json" \
+            "$python" scripts/bench/torch_reference.py --config "$work/$preset.json" --device "$torch_device" \
+            --points "$points" --steps "$steps"
+    done
+else
+    skipped torch "$python has no torch"
+fi
+
+# One JSON of everything (Python's standard library only).
+python3 - "$out" <<'EOF'
+import json, pathlib, sys
+out = pathlib.Path(sys.argv[1])
+def read(name):
+    path = out / name
+    if not name or not path.is_file():
+        return None
+    text = path.read_text().strip()
+    try:
+        return json.loads(text.splitlines()[-1]) if text else None
+    except (json.JSONDecodeError, IndexError):
+        return text[-4000:]
+steps = [json.loads(line) for line in (out / "steps.jsonl").read_text().splitlines() if line.strip()]
+for s in steps:
+    s["result"] = read(s.get("output", ""))
+figures = {
+    "gpu": (out / "gpu.txt").read_text().strip(),
+    "steps": steps,
+    "demo": {"novel_view": read("demo_novel_view.json"), "novel_pose": read("demo_novel_pose.json")},
+}
+(out / "figures.json").write_text(json.dumps(figures, indent=1))
+failed = [s["step"] for s in steps if s["outcome"] not in ("passed", "skipped")]
+print(f"figures in {out / 'figures.json'}; {len(steps)} steps, failed: {', '.join(failed) or 'none'}")
+EOF
