@@ -79,7 +79,7 @@ fn mlp_forward_and_backward_match_flex() {
         for (i, (g, f)) in grads_gpu.iter().zip(&grads_flex).enumerate() {
             let (Some(g), Some(f)) = (g, f) else {
                 panic!(
-                    "parameter {i}: gradient on wgpu: {}, on flex: {}",
+                    "parameter {i}: gradient on {choice}: {}, on flex: {}",
                     g.is_some(),
                     f.is_some()
                 );

@@ -61,9 +61,16 @@ pub fn write_run_plots(run: &RunDir) -> Result<Vec<PathBuf>> {
     Ok(written)
 }
 
+/// Whether the log lines hold a step of `stage` (a line of it with a loss).
+pub fn has_stage(lines: &[serde_json::Value], stage: u64) -> bool {
+    lines
+        .iter()
+        .any(|l| l["stage"].as_u64() == Some(stage) && l["loss"].is_number())
+}
+
 /// The panels of `stage`'s figure from the log lines, or `None` when the log has no step of it.
 pub fn stage_panels(lines: &[serde_json::Value], stage: u64) -> Option<Vec<Panel>> {
-    if series(lines, stage, "loss").is_empty() {
+    if !has_stage(lines, stage) {
         return None;
     }
     let s = |key| series(lines, stage, key);

@@ -603,7 +603,7 @@ fn flex_and_gpu_backends_render_and_differentiate_the_same() {
                     format!("{name}: gradient {}", i - 1)
                 };
                 let worst = anerf_testing::assert_close(
-                    &format!("{what} (wgpu against flex)"),
+                    &format!("{what} ({choice} against flex)"),
                     g,
                     e,
                     anerf_testing::Tolerance::Relative(1e-4),

@@ -13,7 +13,7 @@ use anyhow::{Context, Result};
 use percent_encoding::{AsciiSet, NON_ALPHANUMERIC};
 use serde::Serialize;
 
-use crate::plots::{read_log, stage_panels};
+use crate::plots::{has_stage, read_log};
 use crate::run_dir::RunDir;
 
 /// URL prefix of the run folder's own files.
@@ -95,7 +95,7 @@ impl RunIndex {
         let log_stamp = Stamps::of(&log);
         let curves = [1u64, 2]
             .into_iter()
-            .filter(|&s| stage_panels(&lines, s).is_some())
+            .filter(|&s| has_stage(&lines, s))
             .map(|s| format!("/live/stage{s}.svg?v={log_stamp}"))
             .collect();
         let log_age_s = std::fs::metadata(&log)

@@ -66,7 +66,7 @@ fn cube_encode_matches_flex_and_the_reference() {
                 Tolerance::Relative(1e-5),
             );
             assert_close(
-                &what("reference on wgpu"),
+                &what(&format!("reference on {choice}")),
                 &got,
                 &encode_on(&gpu, false),
                 Tolerance::Relative(1e-5),
@@ -90,14 +90,14 @@ fn cube_gradients_match_flex_and_the_reference() {
             let what = |of: &str, against: &str| format!("F = {features}: d/d{of} vs {against}");
             assert_close(&what("points", "flex"), &gp, &fp, Tolerance::Relative(1e-3));
             assert_close(
-                &what("points", "reference on wgpu"),
+                &what("points", &format!("reference on {choice}")),
                 &gp,
                 &rp,
                 Tolerance::Relative(1e-3),
             );
             assert_close(&what("table", "flex"), &gt, &ft, Tolerance::Relative(1e-4));
             assert_close(
-                &what("table", "reference on wgpu"),
+                &what("table", &format!("reference on {choice}")),
                 &gt,
                 &rt,
                 Tolerance::Relative(1e-4),
@@ -109,11 +109,11 @@ fn cube_gradients_match_flex_and_the_reference() {
 /// `2⁻²⁴`, the relative rounding error of one f32 operation.
 const UNIT_ROUNDOFF: f32 = f32::EPSILON / 2.0;
 
-/// The wgpu tensor behind `t`.
+/// The CubeCL tensor behind `t`.
 fn cube_tensor(t: Tensor<2>) -> CubeTensor {
     match t.into_dispatch().kind {
         DispatchTensorKind::Cube(BackendTensor::Float(t)) => t,
-        other => panic!("expected a float tensor on wgpu, got {other:?}"),
+        other => panic!("expected a float tensor on a CubeCL device, got {other:?}"),
     }
 }
 
@@ -173,7 +173,7 @@ fn cube_table_gradient_loses_no_contended_add() {
             let got = gpu_table_grad(&gpu, &p, &grad, &spec, scheme);
             if let Some(r) = (0..expected.len()).find(|&r| got[r] != expected[r]) {
                 panic!(
-                    "{scheme:?}: table gradient {r} is {} on wgpu, {} on flex",
+                    "{scheme:?}: table gradient {r} is {} on {choice}, {} on flex",
                     got[r], expected[r]
                 );
             }
@@ -213,7 +213,7 @@ fn cube_table_gradient_matches_flex_with_either_atomic_add() {
             for (r, ((g, e), b)) in got.iter().zip(&expected).zip(&bound).enumerate() {
                 assert!(
                     (g - e).abs() <= *b,
-                    "{scheme:?}: table gradient {r} is {g} on wgpu, {e} on flex (bound {b:e})"
+                    "{scheme:?}: table gradient {r} is {g} on {choice}, {e} on flex (bound {b:e})"
                 );
                 worst = worst.max((g - e).abs() / b.max(f32::MIN_POSITIVE));
             }
@@ -275,7 +275,7 @@ fn cube_point_gradient_matches_finite_differences() {
             let fd = (objective(2 * i) - objective(2 * i + 1)) / (2.0 * h as f64);
             assert!(
                 (fd - analytic[i] as f64).abs() < 1e-2 * (1.0 + fd.abs()),
-                "d/dx {i}: finite difference {fd}, wgpu kernel {}",
+                "d/dx {i}: finite difference {fd}, {choice} kernel {}",
                 analytic[i]
             );
             outside += usize::from(base[i].abs() > 1.0);
