@@ -89,6 +89,17 @@ pub fn cpu_device() -> Device {
         .expect("the flex backend is always compiled")
 }
 
+/// Whether `device` (with or without autodiff) is a GPU backend's: Burn's CubeCL backend, which the `wgpu`
+/// and `cuda` features compile.
+pub fn runs_on_gpu(device: &Device) -> bool {
+    match device.as_dispatch().clone().inner() {
+        #[cfg(any(feature = "wgpu", feature = "cuda"))]
+        burn::backend::DispatchDevice::Cube(_) => true,
+        #[allow(unreachable_patterns)]
+        _ => false,
+    }
+}
+
 impl fmt::Display for DeviceChoice {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         f.write_str(self.feature())

@@ -63,10 +63,10 @@ impl BoneMatrices {
     /// replaced by `DET_GUARD`, so the output stays finite (and far outside the body, where the canonical
     /// box check zeroes its density) instead of becoming NaN; no gradient flows through the replaced value.
     ///
-    /// On the flex backend this is one fused kernel ([`crate::kernels::warp::inverse_skinning`]; the bones get no
-    /// gradient), elsewhere [`Self::inverse_reference`].
+    /// On the flex and CubeCL (GPU) backends this is one fused kernel ([`crate::kernels::warp::inverse_skinning`];
+    /// the bones get no gradient), elsewhere [`Self::inverse_reference`].
     pub fn inverse(&self, points: Tensor<2>, weights: Tensor<2>) -> Tensor<2> {
-        if crate::kernels::warp::available(&points.device()) {
+        if crate::kernels::available(&points.device()) {
             crate::kernels::warp::inverse_skinning(points, weights, self.rows())
         } else {
             self.inverse_reference(points, weights)

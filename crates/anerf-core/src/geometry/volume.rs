@@ -335,9 +335,10 @@ impl VolumeTensor {
     }
 
     /// Trilinear interpolation of the rows of `table` (`[nodes, C]`) at points `[N, 3]` → `[N, C]`: one fused
-    /// kernel on the flex backend ([`crate::kernels::warp::trilinear`]), else [`Self::interpolate_reference`].
+    /// kernel on the flex and CubeCL (GPU) backends ([`crate::kernels::warp::trilinear`]), else
+    /// [`Self::interpolate_reference`].
     fn interpolate(&self, table: &Tensor<2>, points: Tensor<2>) -> Tensor<2> {
-        if !crate::kernels::warp::available(&points.device()) {
+        if !crate::kernels::available(&points.device()) {
             return self.interpolate_reference(table, points);
         }
         let (bounds, dims) = (self.host.volume.bounds, self.host.volume.dims);
@@ -406,7 +407,7 @@ impl VolumeTensor {
 }
 
 #[cfg(test)]
-mod tests {
+pub(crate) mod tests {
     use super::*;
     use crate::device::cpu_device;
     use crate::geometry::skinning::points_tensor;
@@ -471,15 +472,13 @@ mod tests {
         }
     }
 
-    /// The fused kernel against the tensor reference on a non-affine field, at points inside, on and beyond
-    /// the border: values and the points' gradient of a random linear functional of every channel.
-    #[test]
-    fn fused_lookup_matches_the_tensor_reference() {
+    /// A non-affine field of three weights and a distance over a box.
+    fn wavy_volume() -> BlendWeightVolume {
         let bounds = Aabb {
             min: Vec3::new(-0.4, -0.9, -0.25),
             max: Vec3::new(0.6, 0.7, 0.35),
         };
-        let v = BlendWeightVolume::from_fn(bounds, [6, 9, 4], 3, |p| {
+        BlendWeightVolume::from_fn(bounds, [6, 9, 4], 3, |p| {
             vec![
                 (3.0 * p.x).sin().abs(),
                 p.y * p.y + 0.1,
@@ -487,26 +486,40 @@ mod tests {
                 p.length() - 0.3,
             ]
         })
-        .unwrap();
-        let device = cpu_device().autodiff();
-        let tensor = v.to_tensor(&device);
+        .unwrap()
+    }
+
+    /// Points inside, on and beyond the border of [`wavy_volume`]'s box.
+    pub(crate) const LOOKUP_POINTS: usize = 700;
+
+    /// The lookup of [`wavy_volume`] at [`LOOKUP_POINTS`] random points on `device` (with autodiff), by the
+    /// fused kernel or the tensor reference: the values `[N, 4]` and the points' gradient `[N, 3]` of a random
+    /// linear functional of every channel.
+    pub(crate) fn wavy_lookup(device: &Device, fused: bool) -> (Vec<f32>, Vec<f32>) {
+        let device = device.clone().autodiff();
+        let tensor = wavy_volume().to_tensor(&device);
+        let n = LOOKUP_POINTS;
         let mut rng = crate::geometry::lbs::tests::TestRng(17);
-        let points: Vec<Vec3> = (0..700).map(|_| rng.vec3(1.0)).collect();
-        let coeff: Vec<f32> = (0..700 * 4).map(|_| rng.range(-1.0, 1.0)).collect();
-        let run = |fused: bool| {
-            let p = points_tensor(&points, &device).require_grad();
-            let out = if fused {
-                tensor.interpolate(&tensor.table, p.clone())
-            } else {
-                tensor.interpolate_reference(&tensor.table, p.clone())
-            };
-            let c = crate::tensor::from_rows(&coeff, 700, 4, &device);
-            let grads = (out.clone() * c).sum().backward();
-            (to_host(out), to_host(p.grad(&grads).unwrap()))
+        let points: Vec<Vec3> = (0..n).map(|_| rng.vec3(1.0)).collect();
+        let coeff: Vec<f32> = (0..n * 4).map(|_| rng.range(-1.0, 1.0)).collect();
+        let p = points_tensor(&points, &device).require_grad();
+        let out = if fused {
+            assert!(crate::kernels::available(&device));
+            tensor.interpolate(&tensor.table, p.clone())
+        } else {
+            tensor.interpolate_reference(&tensor.table, p.clone())
         };
-        let (value, grad) = run(true);
-        let (expected_value, expected_grad) = run(false);
-        assert!(crate::kernels::warp::available(&device));
+        let c = crate::tensor::from_rows(&coeff, n, 4, &device);
+        let grads = (out.clone() * c).sum().backward();
+        (to_host(out), to_host(p.grad(&grads).unwrap()))
+    }
+
+    /// The fused kernel against the tensor reference on a non-affine field, at points inside, on and beyond
+    /// the border: values and the points' gradient of a random linear functional of every channel.
+    #[test]
+    fn fused_lookup_matches_the_tensor_reference() {
+        let (value, grad) = wavy_lookup(&cpu_device(), true);
+        let (expected_value, expected_grad) = wavy_lookup(&cpu_device(), false);
         anerf_testing::assert_close(
             "trilinear value",
             &value,

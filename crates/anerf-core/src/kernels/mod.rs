@@ -5,10 +5,30 @@
 //! compare against and which every backend without kernels runs.
 //!
 //! Shared by the CPU kernels: slice access to flex tensors (`flex`), trilinear corner weights
-//! (`trilinear`) and vectorisable elementary functions (`fastmath`).
+//! (`trilinear`) and vectorisable elementary functions (`fastmath`); by the CubeCL kernels of the GPU
+//! backends (`wgpu`, `cuda` features): launch grids, contiguous tensors and the trilinear side weights
+//! (`cube`).
 
+#[cfg(any(feature = "wgpu", feature = "cuda"))]
+mod cube;
 mod fastmath;
 mod flex;
 pub mod hash_grid;
 mod trilinear;
 pub mod warp;
+
+use burn::backend::DispatchDevice;
+use burn::prelude::Device;
+
+/// Whether `device` runs the hand-written kernels (both families): the flex backend and, with the `wgpu` or
+/// `cuda` feature, the CubeCL backend (its runtimes share the kernels); with or without autodiff. Elsewhere
+/// the callers take the plain-tensor references.
+pub fn available(device: &Device) -> bool {
+    match device.as_dispatch().clone().inner() {
+        DispatchDevice::Flex(_) => true,
+        #[cfg(any(feature = "wgpu", feature = "cuda"))]
+        DispatchDevice::Cube(_) => true,
+        #[allow(unreachable_patterns)]
+        _ => false,
+    }
+}

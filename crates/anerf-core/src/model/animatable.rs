@@ -10,7 +10,9 @@ use super::blend::BlendWeightField;
 use super::nerf::CanonicalNerf;
 use super::occupancy::OccupancyGrid;
 use super::{ConsistencyLoss, ModelConfig, ViewDirection};
-use crate::geometry::skinning::{world_to_pose_directions, BoneMatrices};
+use crate::geometry::skinning::{
+    points_tensor, world_to_pose, world_to_pose_directions, BoneMatrices,
+};
 use crate::geometry::VolumeTensor;
 use crate::geometry::{Aabb, GlobalTransform};
 use crate::render::{blend_consistency, composite, stratified_depths, RayBatch};
@@ -359,9 +361,8 @@ impl AnimatableNerf {
     }
 
     /// Shades host samples: pose-space points (metres) with world-space unit view directions `[M·3]`. Their
-    /// prior weights are read on the host ([`VolumeTensor::weights_at`]), the samples uploaded, warped, and
-    /// (with an occupancy grid) those in empty canonical cells dropped; returns the rows of the given samples
-    /// that reached the canonical NeRF (all of them without a grid; never none) and their shading.
+    /// prior weights are read on the host ([`VolumeTensor::weights_at`]) and the samples uploaded, then
+    /// shaded as [`Self::shade_points`] does.
     pub(super) fn shade_survivors(
         &self,
         points: &[Vec3],
@@ -372,15 +373,35 @@ impl AnimatableNerf {
         let device = frame.volume.device();
         let m = points.len();
         let prior = frame.volume.weights_at(points);
-        let flat: Vec<f32> = points.iter().flat_map(|p| p.to_array()).collect();
-        let points = Tensor::from_data(TensorData::new(flat, [m, 3]), &device);
         let dirs = Tensor::from_data(TensorData::new(directions, [m, 3]), &device);
-        let warped = self.warp(points.clone(), prior, frame);
+        self.shade_points(
+            points_tensor(points, &device),
+            prior,
+            dirs,
+            frame,
+            canonical,
+        )
+    }
+
+    /// Shades samples on the device: pose-space points `[M, 3]` (metres) with their prior weights `[M, K]`
+    /// and world-space unit view directions `[M, 3]` are warped and (with an occupancy grid) those in empty
+    /// canonical cells dropped; returns the rows of the given samples that reached the canonical NeRF (all of
+    /// them without a grid; never none) and their shading.
+    fn shade_points(
+        &self,
+        points: Tensor<2>,
+        prior: Tensor<2>,
+        dirs: Tensor<2>,
+        frame: &FrameInputs,
+        canonical: &CanonicalInputs,
+    ) -> (Vec<i64>, ShadedSamples) {
+        let device = points.device();
+        let [m, _] = points.dims();
         let Some(grid) = &self.occupancy else {
             let rows = (0..m as i64).collect();
-            let dirs = self.colour_directions(points, dirs, &warped, frame);
-            return (rows, self.radiance(warped, dirs, frame, canonical));
+            return (rows, self.shade(points, prior, dirs, frame, canonical));
         };
+        let warped = self.warp(points.clone(), prior, frame);
         let mut rows = grid.occupied_rows(&to_host(warped.canonical_points.clone()));
         if rows.is_empty() {
             rows.push(0);
@@ -398,13 +419,50 @@ impl AnimatableNerf {
         (rows, self.radiance(kept, dirs, frame, canonical))
     }
 
+    /// [`cull_samples`] on the device, for the GPU backends: the samples along `rays` at `depths` (`[R, S]`,
+    /// metres) placed in pose space, their distance to the body looked up in the frame volume, and those
+    /// closer than `cull_distance` (or else the closest) selected with their view directions and prior
+    /// weights. Only the survivors' indices cross to the host and back (their count fixes the batch's shape);
+    /// the rays, depths and survivors stay on the device.
+    pub(super) fn cull_on_device(
+        &self,
+        rays: &RayBatch,
+        depths: Tensor<2>,
+        frame: &FrameInputs,
+    ) -> DeviceSurvivors {
+        let [r, s] = depths.dims();
+        let world = rays.origins.clone().unsqueeze_dim::<3>(1)
+            + rays.directions.clone().unsqueeze_dim::<3>(1) * depths.unsqueeze_dim::<3>(2);
+        let pose = world_to_pose(world.reshape([r * s, 3]), &frame.global);
+        let distance = frame.volume.sample_distance(pose.clone()).reshape([r * s]);
+        let near = distance
+            .clone()
+            .lower_elem(self.config.cull_distance)
+            .argwhere();
+        let index = match near.dims() {
+            [0, _] => distance.argmin(0),
+            [m, _] => near.reshape([m]),
+        };
+        let points = pose.select(0, index.clone());
+        DeviceSurvivors {
+            directions: rays
+                .directions
+                .clone()
+                .select(0, index.clone().div_scalar(s as i64)),
+            prior: frame.volume.sample(points.clone()).weights,
+            points,
+            index,
+        }
+    }
+
     /// Renders `rays` of one frame. `jitter` (`[R, S]` uniform in `[0, 1)`) perturbs the depths when training;
     /// `with_consistency` also returns the inputs of the blend-weight consistency loss.
     ///
     /// Samples whose distance to the body (the frame volume's last channel) is at least `cull_distance` never
-    /// reach an MLP: culling and the survivors' prior weights are computed on the host ([`cull_samples`],
-    /// [`VolumeTensor::weights_at`]), the survivors uploaded, shaded and scattered back; culled samples have
-    /// zero density.
+    /// reach an MLP: on CPU backends culling and the survivors' prior weights are computed on the host
+    /// ([`cull_samples`], [`VolumeTensor::weights_at`]) and the survivors uploaded; on GPU backends both run
+    /// on the device ([`Self::cull_on_device`]). The survivors are shaded and scattered back; culled samples
+    /// have zero density.
     /// The sample closest to the body is always kept, so the MLP batch is never empty. With an occupancy grid
     /// ([`Self::rebuild_occupancy`]), survivors whose warped position falls in an empty canonical cell skip the
     /// canonical NeRF (and the canonical blend weights) too: one more read-back of their canonical positions.
@@ -421,25 +479,46 @@ impl AnimatableNerf {
         let r = rays.len();
         let n = r * s;
         let depths = stratified_depths(rays.near.clone(), rays.far.clone(), s, jitter);
-        // Culling runs on the host: only the survivors' positions and directions are uploaded.
-        let survivors = cull_samples(
-            &SampleRays {
-                origins: &to_host(rays.origins.clone()),
-                directions: &to_host(rays.directions.clone()),
-                depths: &to_host(depths.clone()),
-                samples: s,
-            },
-            &frame.global,
-            &frame.volume,
-            self.config.cull_distance,
-        );
-        let keep = survivors.index;
-        let m = keep.len();
-        let (rows, shaded) =
-            self.shade_survivors(&survivors.points, survivors.directions, frame, canonical);
+        // The survivors' flat indices `[M]` on the device, and the rows among them that were shaded.
+        let (keep, (rows, shaded)) = if culls_on_device(&device) {
+            let survivors = self.cull_on_device(rays, depths.clone(), frame);
+            let shaded = self.shade_points(
+                survivors.points,
+                survivors.prior,
+                survivors.directions,
+                frame,
+                canonical,
+            );
+            (survivors.index, shaded)
+        } else {
+            // Culling runs on the host: only the survivors' positions and directions are uploaded.
+            let survivors = cull_samples(
+                &SampleRays {
+                    origins: &to_host(rays.origins.clone()),
+                    directions: &to_host(rays.directions.clone()),
+                    depths: &to_host(depths.clone()),
+                    samples: s,
+                },
+                &frame.global,
+                &frame.volume,
+                self.config.cull_distance,
+            );
+            let shaded =
+                self.shade_survivors(&survivors.points, survivors.directions, frame, canonical);
+            let m = survivors.index.len();
+            let keep = Tensor::<1, Int>::from_data(TensorData::new(survivors.index, [m]), &device);
+            (keep, shaded)
+        };
+        let m = keep.dims()[0];
         let occupied = rows.len();
-        let global: Vec<i64> = rows.iter().map(|&j| keep[j as usize]).collect();
-        let index = Tensor::<1, Int>::from_data(TensorData::new(global, [occupied]), &device);
+        let index = if occupied == m {
+            keep
+        } else {
+            keep.select(
+                0,
+                Tensor::<1, Int>::from_data(TensorData::new(rows, [occupied]), &device),
+            )
+        };
 
         let consistency = with_consistency.then(|| ConsistencyTerms {
             observed: shaded.weights.clone(),
@@ -470,6 +549,24 @@ impl AnimatableNerf {
             total_samples: n,
         }
     }
+}
+
+/// Whether the render culls on the device: on the GPU backends, where reading the batch back and uploading
+/// the survivors would cost more than the lookups; the CPU backends cull on the host.
+fn culls_on_device(device: &Device) -> bool {
+    crate::device::runs_on_gpu(device)
+}
+
+/// The samples that survive culling, on the device ([`AnimatableNerf::cull_on_device`]).
+pub(super) struct DeviceSurvivors {
+    /// `[M]` flat indices `ray · S + sample`.
+    pub index: Tensor<1, Int>,
+    /// `[M, 3]` pose-space positions (metres).
+    pub points: Tensor<2>,
+    /// `[M, 3]` world-space unit view directions.
+    pub directions: Tensor<2>,
+    /// `[M, K]` the body model's blend weights `w^s` there.
+    pub prior: Tensor<2>,
 }
 
 /// The samples along a batch of rays, on the host.

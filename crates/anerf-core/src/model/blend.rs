@@ -106,7 +106,7 @@ pub fn combine(
     prior: Tensor<2>,
 ) -> Tensor<2> {
     match parameterisation {
-        BlendParameterisation::LogSoftmax if crate::kernels::warp::available(&prior.device()) => {
+        BlendParameterisation::LogSoftmax if crate::kernels::available(&prior.device()) => {
             crate::kernels::warp::prior_softmax(prior, residual)
         }
         BlendParameterisation::LogSoftmax => prior_softmax_reference(prior, residual),

@@ -130,7 +130,7 @@ impl HashGrid {
     /// Encodes points `[N, 3]` (metres, in the frame the grid covers) → `[N, L·F]`, differentiable in the
     /// points and the table. Uses the kernels on the flex and wgpu backends, the tensor reference elsewhere.
     pub fn forward(&self, points: Tensor<2>) -> Tensor<2> {
-        if extension::has_kernels(&points.device()) {
+        if crate::kernels::available(&points.device()) {
             extension::encode(points, self.table.val(), &self.spec)
         } else {
             encode_reference(points, self.table.val(), &self.spec)

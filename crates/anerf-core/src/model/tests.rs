@@ -6,6 +6,7 @@ use burn::optim::GradientsParams;
 use burn::prelude::*;
 use glam::Vec3;
 
+use super::animatable::{cull_samples, SampleRays};
 use super::*;
 use crate::device::cpu_device;
 use crate::geometry::skinning::{points_tensor, world_to_pose, BoneMatrices};
@@ -334,6 +335,67 @@ fn culling_matches_evaluating_every_sample_and_zeroing_the_far_ones() {
     assert!(b.iter().any(|v| *v > 1e-3), "the scene renders something");
 }
 
+/// The GPU backends' culling on the device keeps the host culling's samples, in the same order, at the same
+/// pose-space positions, with the same view directions and prior weights (both run here on flex); for rays
+/// turned away from the body, both keep the closest sample alone.
+#[test]
+fn culling_on_the_device_keeps_the_host_cullings_samples() {
+    let device = cpu_device();
+    device.seed(3);
+    let s = scene(&device, FrameCode::Training(2));
+    let model = tiny_model(&device);
+    let away = RayBatch {
+        directions: -s.rays.directions.clone(),
+        ..s.rays.clone()
+    };
+    for (name, rays, turned_away) in [
+        ("the scene's rays", &s.rays, false),
+        ("rays turned away", &away, true),
+    ] {
+        let samples = model.config().samples_per_ray;
+        let depths = stratified_depths(rays.near.clone(), rays.far.clone(), samples, None);
+        let on_device = model.cull_on_device(rays, depths.clone(), &s.frame);
+        let host = cull_samples(
+            &SampleRays {
+                origins: &to_host(rays.origins.clone()),
+                directions: &to_host(rays.directions.clone()),
+                depths: &to_host(depths),
+                samples,
+            },
+            &s.frame.global,
+            &s.frame.volume,
+            model.config().cull_distance,
+        );
+        let index: Vec<i64> = on_device.index.into_data().iter::<i64>().collect();
+        assert_eq!(index, host.index, "{name}");
+        if turned_away {
+            assert_eq!(index.len(), 1, "{name}: only the closest sample");
+        } else {
+            let total = rays.len() * samples;
+            assert!(
+                index.len() > 1 && index.len() < total,
+                "{name}: some kept, some culled"
+            );
+        }
+        let close = |what: &str, got: Tensor<2>, expected: &[f32]| {
+            anerf_testing::assert_close(
+                &format!("{name}: {what}"),
+                &to_host(got),
+                expected,
+                anerf_testing::Tolerance::Relative(1e-5),
+            );
+        };
+        let host_points: Vec<f32> = host.points.iter().flat_map(|p| p.to_array()).collect();
+        close("points", on_device.points, &host_points);
+        close("directions", on_device.directions, &host.directions);
+        close(
+            "prior weights",
+            on_device.prior,
+            &to_host(s.frame.volume.weights_at(&host.points)),
+        );
+    }
+}
+
 /// Adds `delta` to element `index` of the parameter `target`.
 struct Nudge {
     target: ParamId,
@@ -549,7 +611,7 @@ fn flex_and_gpu_backends_render_and_differentiate_the_same() {
         "model::tests::flex_and_gpu_backends_render_and_differentiate_the_same",
     ) {
         eprintln!("on {choice}");
-        assert!(crate::kernels::hash_grid::extension::has_kernels(&gpu));
+        assert!(crate::kernels::available(&gpu));
         let grid = |levels, log2_table_size, finest_resolution| super::hash_grid::HashGridConfig {
             levels,
             log2_table_size,

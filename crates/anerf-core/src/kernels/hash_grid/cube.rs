@@ -6,7 +6,9 @@
 //! * table gradient: one unit per (point, level) scatters `w_c · grad` into the eight corners' rows with
 //!   atomic adds (see [`AtomicScheme`] for how an `f32` is added atomically where the device has no float
 //!   atomics);
-//! * point gradient: one unit per point walks the levels and writes its three derivatives (no atomics).
+//! * point gradient: one unit per point walks the levels and writes its three derivatives (no atomics);
+//! * both gradients (what a backward pass through points and table asks for): one unit per (point, level)
+//!   does the table gradient's adds and adds its level's share of the point derivative atomically.
 //!
 //! Shapes as in [`super::cpu`]: points `[N, 3]` (metres), table `[L·T, F]`, encodings `[N, L·F]`; all
 //! `f32`. Inputs are made contiguous first; outputs are indexed through their strides.
@@ -14,18 +16,16 @@
 use burn::backend::Cube;
 use burn::tensor::{DType, Shape};
 use burn_cubecl::cubecl;
-use burn_cubecl::kernel::into_contiguous;
-use burn_cubecl::ops::numeric::{empty_device_contiguous_dtype, zeros_client};
+use burn_cubecl::ops::numeric::zeros_client;
 use burn_cubecl::tensor::CubeTensor;
-use cubecl::client::Client;
 use cubecl::features::AtomicUsage;
 use cubecl::ir::{ElemType, FloatKind, Type, UIntKind};
 use cubecl::prelude::*;
-use cubecl::{calculate_cube_count_elemwise, CubeDim};
 
 use super::cpu::HASH_PRIMES;
 use super::extension::HashGridBackend;
 use super::GridSpec;
+use crate::kernels::cube::{contiguous_f32, dims, empty_f32, side_sign, side_weight, Units};
 
 // The hash multiplies x by the first prime, 1, which `corner_row` leaves out.
 const _: () = assert!(HASH_PRIMES[0] == 1);
@@ -99,18 +99,6 @@ fn corner_row(cell: &Cell, corner: u32, res: u32, dense: bool, mask: u32) -> u32
         x + side * (y + side * z),
         (x ^ (y * PRIME_Y) ^ (z * PRIME_Z)) & mask,
     )
-}
-
-/// The weight of one side of a cell along an axis: `t` on the high side, `1 − t` on the low one.
-#[cube]
-fn side_weight(t: f32, high: u32) -> f32 {
-    select(high == 1, t, 1.0f32 - t)
-}
-
-/// `±1`: the sign of `∂ side_weight / ∂ t`.
-#[cube]
-fn side_sign(high: u32) -> f32 {
-    select(high == 1, 1.0f32, -1.0f32)
 }
 
 /// Trilinear weight of corner `corner`.
@@ -334,17 +322,110 @@ fn points_grad_kernel(
     out[first + 2 * step] = select(inside(vz), dz, 0.0f32);
 }
 
+/// Both gradients in one pass, one unit per `(i, l)`: the table adds of [`table_grad_kernel`] and the
+/// level's share of [`points_grad_kernel`]'s derivative, added atomically into `grad_points` (the `L` adds
+/// into a point's row contend only with each other). Both outputs must be zero on entry.
+#[cube(launch_unchecked)]
+fn grads_kernel<W: Numeric>(
+    points: &Tensor<f32>,
+    table: &Tensor<f32>,
+    grad: &Tensor<f32>,
+    levels: &Tensor<u32>,
+    grad_table: &Tensor<Atomic<W>>,
+    grad_points: &Tensor<Atomic<W>>,
+    half_extent: f32,
+    table_size: u32,
+    #[comptime] features: usize,
+    #[comptime] native: bool,
+    #[define(W)] _word: ElemType,
+) {
+    let n_levels = levels.shape(0) / 2;
+    if ABSOLUTE_POS >= points.shape(0) * n_levels {
+        terminate!();
+    }
+    let unit = point_level(points, levels, half_extent, table_size);
+    let grad_row = (unit.i * n_levels + unit.l) * features;
+    let mut lx = 0.0f32;
+    let mut ly = 0.0f32;
+    let mut lz = 0.0f32;
+    #[unroll]
+    for c in 0..8u32 {
+        let row = table_row(&unit.level, &unit.cell, c);
+        let w = corner_weight(&unit.cell, c);
+        let mut dot = 0.0f32;
+        #[unroll]
+        for f in 0..features {
+            let g = grad[grad_row + f];
+            let value = w * g;
+            if value != 0.0f32 {
+                let index = row * grad_table.stride(0) + f * grad_table.stride(1);
+                atomic_add::<W>(grad_table, index, value, native);
+            }
+            dot += g * table[row * features + f];
+        }
+        let hx = c & 1;
+        let hy = (c >> 1) & 1;
+        let hz = (c >> 2) & 1;
+        let sx = side_weight(unit.cell.fx, hx);
+        let sy = side_weight(unit.cell.fy, hy);
+        let sz = side_weight(unit.cell.fz, hz);
+        lx += dot * side_sign(hx) * sy * sz;
+        ly += dot * side_sign(hy) * sx * sz;
+        lz += dot * side_sign(hz) * sx * sy;
+    }
+    let cells_per_metre = f32::cast_from(unit.level.res) / (2.0f32 * half_extent);
+    add_axis_derivative::<W>(
+        grad_points,
+        points,
+        unit.i,
+        0,
+        lx * cells_per_metre,
+        half_extent,
+        native,
+    );
+    add_axis_derivative::<W>(
+        grad_points,
+        points,
+        unit.i,
+        1,
+        ly * cells_per_metre,
+        half_extent,
+        native,
+    );
+    add_axis_derivative::<W>(
+        grad_points,
+        points,
+        unit.i,
+        2,
+        lz * cells_per_metre,
+        half_extent,
+        native,
+    );
+}
+
+/// Adds one level's derivative along `axis` into point `i`'s gradient, unless the point lies outside the
+/// grid along that axis (where the clamped position has no derivative).
+#[cube]
+fn add_axis_derivative<W: Numeric>(
+    grad_points: &Tensor<Atomic<W>>,
+    points: &Tensor<f32>,
+    i: usize,
+    axis: usize,
+    derivative: f32,
+    half_extent: f32,
+    #[comptime] native: bool,
+) {
+    if inside(unit_coord(points, i, axis, half_extent)) && derivative != 0.0f32 {
+        let index = i * grad_points.stride(0) + axis * grad_points.stride(1);
+        atomic_add::<W>(grad_points, index, derivative, native);
+    }
+}
+
 /// Whether an unclamped unit coordinate lies strictly inside the grid (outside, the clamped position has
 /// no derivative).
 #[cube]
 fn inside(v: f32) -> bool {
     v > 0.0f32 && v < 1.0f32
-}
-
-/// An `f32` tensor of the encoding as a contiguous one (the kernels index inputs as dense rows).
-fn contiguous_f32(t: CubeTensor, what: &str) -> CubeTensor {
-    assert_eq!(t.dtype, DType::F32, "the hash-grid kernels take f32 {what}");
-    into_contiguous(t)
 }
 
 /// The per-level constants as a `[2 L]` `u32` tensor on `like`'s device: `[res, dense]` per level.
@@ -365,43 +446,23 @@ fn level_table(spec: &GridSpec, like: &CubeTensor) -> CubeTensor {
 
 /// Rows of a `[rows, cols]` tensor.
 fn rows(t: &CubeTensor) -> usize {
-    t.meta.shape()[0]
+    dims(t)[0]
 }
 
-/// What a kernel launch needs besides its tensors: the device's client, a grid of one unit per work item
-/// and the level table.
+/// What a kernel launch needs besides its tensors: a grid of one unit per work item and the level table.
 struct Launch {
-    client: Client,
-    count: CubeCount,
-    dim: CubeDim,
+    units: Units,
     levels: TensorArg,
 }
 
 impl Launch {
     /// A launch of `units` units on the device of `points`; `None` when there is nothing to do.
     fn new(points: &CubeTensor, spec: &GridSpec, units: usize) -> Option<Self> {
-        if units == 0 {
-            return None;
-        }
-        let client = points.client.clone();
-        let dim = CubeDim::new(&client, units);
         Some(Self {
-            count: calculate_cube_count_elemwise(&client, units, dim),
-            dim,
+            units: Units::on(points, units)?,
             levels: level_table(spec, points).into_tensor_arg(),
-            client,
         })
     }
-}
-
-/// A new contiguous `f32` tensor of `dims` on the device of `like`.
-fn empty_f32(like: &CubeTensor, dims: [usize; 2]) -> CubeTensor {
-    empty_device_contiguous_dtype(
-        like.client.clone(),
-        like.device.clone(),
-        Shape::new(dims),
-        DType::F32,
-    )
 }
 
 /// How [`table_grad`] adds into the table ([`atomic_add`]).
@@ -421,6 +482,14 @@ pub(super) enum AtomicScheme {
 }
 
 impl AtomicScheme {
+    /// Whether the kernels add natively, and the word they read the `f32` outputs as.
+    fn word(self) -> (bool, ElemType) {
+        match self {
+            Self::Native => (true, ElemType::Float(FloatKind::F32)),
+            Self::Exchange => (false, ElemType::UInt(UIntKind::U32)),
+        }
+    }
+
     /// The scheme the device of `t` supports best.
     pub(super) fn for_device(t: &CubeTensor) -> Self {
         let usage = t
@@ -443,8 +512,8 @@ pub(super) fn table_grad(
     spec: &GridSpec,
     scheme: AtomicScheme,
 ) -> CubeTensor {
-    let points = contiguous_f32(points, "points");
-    let grad = contiguous_f32(grad, "gradients");
+    let points = contiguous_f32(points, "hash-grid points");
+    let grad = contiguous_f32(grad, "hash-grid gradients");
     let out = zeros_client(
         points.client.clone(),
         points.device.clone(),
@@ -454,17 +523,14 @@ pub(super) fn table_grad(
     let Some(launch) = Launch::new(&points, spec, rows(&points) * spec.levels()) else {
         return out;
     };
-    let (native, word) = match scheme {
-        AtomicScheme::Native => (true, ElemType::Float(FloatKind::F32)),
-        AtomicScheme::Exchange => (false, ElemType::UInt(UIntKind::U32)),
-    };
+    let (native, word) = scheme.word();
     // SAFETY: every index the kernel forms is in range: `i < N`, `l < L`, rows `< T`, `f < F`; the f32
     // output is read as `u32` words of the same size by the exchange scheme.
     unsafe {
         table_grad_kernel::launch_unchecked(
-            &launch.client,
-            launch.count,
-            launch.dim,
+            &launch.units.client,
+            launch.units.count,
+            launch.units.dim,
             points.into_tensor_arg(),
             grad.into_tensor_arg(),
             launch.levels,
@@ -479,10 +545,59 @@ pub(super) fn table_grad(
     out
 }
 
+/// Both gradients `(table [L·T, F], points [N, 3])` in one launch of [`grads_kernel`], added with the given
+/// atomic scheme.
+pub(super) fn grads(
+    points: CubeTensor,
+    table: CubeTensor,
+    grad: CubeTensor,
+    spec: &GridSpec,
+    scheme: AtomicScheme,
+) -> (CubeTensor, CubeTensor) {
+    let points = contiguous_f32(points, "hash-grid points");
+    let table = contiguous_f32(table, "hash-grid tables");
+    let grad = contiguous_f32(grad, "hash-grid gradients");
+    let zeros = |dims: [usize; 2]| {
+        zeros_client(
+            points.client.clone(),
+            points.device.clone(),
+            Shape::new(dims),
+            DType::F32,
+        )
+    };
+    let grad_table = zeros([spec.table_rows(), spec.features]);
+    let grad_points = zeros([rows(&points), 3]);
+    let Some(launch) = Launch::new(&points, spec, rows(&points) * spec.levels()) else {
+        return (grad_table, grad_points);
+    };
+    let (native, word) = scheme.word();
+    // SAFETY: every index the kernel forms is in range: `i < N`, `l < L`, rows `< T`, `f < F`, axes `< 3`;
+    // the f32 outputs are read as `u32` words of the same size by the exchange scheme.
+    unsafe {
+        grads_kernel::launch_unchecked(
+            &launch.units.client,
+            launch.units.count,
+            launch.units.dim,
+            points.into_tensor_arg(),
+            table.into_tensor_arg(),
+            grad.into_tensor_arg(),
+            launch.levels,
+            grad_table.clone().into_tensor_arg(),
+            grad_points.clone().into_tensor_arg(),
+            spec.half_extent,
+            spec.table_size as u32,
+            spec.features,
+            native,
+            word,
+        )
+    }
+    (grad_table, grad_points)
+}
+
 impl HashGridBackend for Cube {
     fn hash_grid_encode(points: CubeTensor, table: CubeTensor, spec: GridSpec) -> CubeTensor {
-        let points = contiguous_f32(points, "points");
-        let table = contiguous_f32(table, "table");
+        let points = contiguous_f32(points, "hash-grid points");
+        let table = contiguous_f32(table, "hash-grid tables");
         assert_eq!(
             table.meta.shape().dims::<2>(),
             [spec.table_rows(), spec.features],
@@ -496,9 +611,9 @@ impl HashGridBackend for Cube {
         // SAFETY: every index the kernel forms is in range: `i < N`, `l < L`, rows `< T`, `f < F`.
         unsafe {
             encode_kernel::launch_unchecked(
-                &launch.client,
-                launch.count,
-                launch.dim,
+                &launch.units.client,
+                launch.units.count,
+                launch.units.dim,
                 points.into_tensor_arg(),
                 table.into_tensor_arg(),
                 launch.levels,
@@ -516,15 +631,25 @@ impl HashGridBackend for Cube {
         table_grad(points, grad, &spec, scheme)
     }
 
+    fn hash_grid_grads(
+        points: CubeTensor,
+        table: CubeTensor,
+        grad: CubeTensor,
+        spec: GridSpec,
+    ) -> (CubeTensor, CubeTensor) {
+        let scheme = AtomicScheme::for_device(&points);
+        grads(points, table, grad, &spec, scheme)
+    }
+
     fn hash_grid_points_grad(
         points: CubeTensor,
         table: CubeTensor,
         grad: CubeTensor,
         spec: GridSpec,
     ) -> CubeTensor {
-        let points = contiguous_f32(points, "points");
-        let table = contiguous_f32(table, "table");
-        let grad = contiguous_f32(grad, "gradients");
+        let points = contiguous_f32(points, "hash-grid points");
+        let table = contiguous_f32(table, "hash-grid tables");
+        let grad = contiguous_f32(grad, "hash-grid gradients");
         let out = empty_f32(&points, [rows(&points), 3]);
         let Some(launch) = Launch::new(&points, &spec, rows(&points)) else {
             return out;
@@ -532,9 +657,9 @@ impl HashGridBackend for Cube {
         // SAFETY: every index the kernel forms is in range: `i < N`, `l < L`, rows `< T`, `f < F`.
         unsafe {
             points_grad_kernel::launch_unchecked(
-                &launch.client,
-                launch.count,
-                launch.dim,
+                &launch.units.client,
+                launch.units.count,
+                launch.units.dim,
                 points.into_tensor_arg(),
                 table.into_tensor_arg(),
                 grad.into_tensor_arg(),

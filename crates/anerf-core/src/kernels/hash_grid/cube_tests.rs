@@ -39,7 +39,9 @@ fn table_values(spec: &GridSpec) -> Vec<f32> {
 fn cube_encode_matches_flex_and_the_reference() {
     for (choice, gpu) in gpus("cube_encode_matches_flex_and_the_reference") {
         eprintln!("on {choice}");
-        assert!(extension::has_kernels(&gpu) && extension::has_kernels(&gpu.clone().autodiff()));
+        assert!(
+            crate::kernels::available(&gpu) && crate::kernels::available(&gpu.clone().autodiff())
+        );
         for features in [2, 3] {
             let spec = spec_with(features);
             let n = 300;
@@ -218,6 +220,57 @@ fn cube_table_gradient_matches_flex_with_either_atomic_add() {
                 worst = worst.max((g - e).abs() / b.max(f32::MIN_POSITIVE));
             }
             eprintln!("{scheme:?}: worst difference {worst:.1e} of the bound");
+        }
+    }
+}
+
+/// The one-pass kernel of both gradients, with either atomic add, against the CPU kernel of both: points
+/// spread over and beyond the grid. Its point gradient sums each point's levels in another order (atomic
+/// adds), within the point tolerance; its table gradient is the table kernel's, within its tolerance.
+#[test]
+fn cube_fused_gradients_match_flex_with_either_atomic_add() {
+    for (choice, gpu) in gpus("cube_fused_gradients_match_flex_with_either_atomic_add") {
+        eprintln!("on {choice}");
+        for features in [2, 3] {
+            let spec = spec_with(features);
+            let n = 400;
+            let p = points(n);
+            let table = table_values(&spec);
+            let grad = wave(n * spec.output_dim(), 0.91);
+            let mut expected_table = vec![0.0; spec.table_rows() * spec.features];
+            let mut expected_points = vec![0.0; n * 3];
+            cpu::grads(
+                &p,
+                &table,
+                &grad,
+                &spec,
+                &mut expected_table,
+                &mut expected_points,
+            );
+            assert!(expected_points.contains(&0.0), "some points lie outside");
+            for scheme in atomic_schemes(&gpu) {
+                let (got_table, got_points) = cube::grads(
+                    cube_tensor(from_rows(&p, n, 3, &gpu)),
+                    cube_tensor(from_rows(&table, spec.table_rows(), spec.features, &gpu)),
+                    cube_tensor(from_rows(&grad, n, spec.output_dim(), &gpu)),
+                    &spec,
+                    scheme,
+                );
+                let host = |t| into_data_sync(t).try_to_vec::<f32>().expect("f32 values");
+                let what = |of: &str| format!("F = {features}, {scheme:?}: d/d{of} on {choice}");
+                assert_close(
+                    &what("table"),
+                    &host(got_table),
+                    &expected_table,
+                    Tolerance::Relative(1e-4),
+                );
+                assert_close(
+                    &what("points"),
+                    &host(got_points),
+                    &expected_points,
+                    Tolerance::Relative(1e-3),
+                );
+            }
         }
     }
 }

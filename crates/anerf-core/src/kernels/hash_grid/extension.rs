@@ -1,7 +1,7 @@
 //! The hash-grid encoding as a Burn backend extension: the flex backend runs the CPU [`super::cpu`],
 //! the CubeCL backend (with the `wgpu` or `cuda` feature) the kernels of `super::cube`; the autodiff backend wraps
 //! either with a hand-written backward pass (table gradient and point gradient). Other backends use
-//! [`crate::model::hash_grid::encode_reference`] (see [`has_kernels`]).
+//! [`crate::model::hash_grid::encode_reference`] (see [`crate::kernels::available`]).
 
 use burn::backend::autodiff::checkpoint::base::Checkpointer;
 use burn::backend::autodiff::checkpoint::strategy::CheckpointStrategy;
@@ -11,7 +11,7 @@ use burn::backend::autodiff::Autodiff;
 use burn::backend::flex::{Flex, FlexTensor};
 use burn::backend::tensor::FloatTensor;
 use burn::backend::AutodiffBackend;
-use burn::backend::{backend_extension, Dispatch, DispatchDevice};
+use burn::backend::{backend_extension, Dispatch};
 use burn::prelude::*;
 
 use super::{cpu, GridSpec};
@@ -56,19 +56,7 @@ pub trait HashGridBackend: burn::backend::Backend {
     }
 }
 
-/// Whether `device` runs the hand-written kernels: the flex backend, and with the `wgpu` or `cuda` feature
-/// the CubeCL backend (its runtimes, wgpu and CUDA, share the kernels); with or without autodiff.
-pub fn has_kernels(device: &Device) -> bool {
-    match device.as_dispatch().clone().inner() {
-        DispatchDevice::Flex(_) => true,
-        #[cfg(any(feature = "wgpu", feature = "cuda"))]
-        DispatchDevice::Cube(_) => true,
-        #[allow(unreachable_patterns)]
-        _ => false,
-    }
-}
-
-/// The encoding through the extension; `points` and `table` must live on a device where [`has_kernels`].
+/// The encoding through the extension; `points` and `table` must live on a device where [`crate::kernels::available`].
 pub fn encode(points: Tensor<2>, table: Tensor<2>, spec: &GridSpec) -> Tensor<2> {
     Tensor::from_dispatch(<Dispatch as HashGridBackend>::hash_grid_encode(
         points.into_dispatch(),

@@ -77,7 +77,7 @@ fn kernels_match_the_reference_forward() {
 
 fn forward_matches(features: usize) {
     let device = cpu_device();
-    assert!(extension::has_kernels(&device));
+    assert!(crate::kernels::available(&device));
     let spec = spec_with(features);
     let n = 200;
     let p = from_rows(&points(n), n, 3, &device);

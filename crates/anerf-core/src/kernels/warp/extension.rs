@@ -1,6 +1,7 @@
-//! The fused warp operations as a Burn backend extension: the flex backend runs [`super::cpu`], the
-//! autodiff backend wraps it with the hand-written backward passes. Other backends are not listed (calling
-//! them there panics); [`super::available`] keeps them on the tensor reference.
+//! The fused warp operations as a Burn backend extension: the flex backend runs [`super::cpu`], the CubeCL
+//! backend (with the `wgpu` or `cuda` feature) the kernels of `super::cube`; the autodiff backend wraps
+//! either with the hand-written backward passes. Other backends are not listed (calling them there panics);
+//! [`super::available`] keeps them on the tensor reference.
 
 use burn::backend::autodiff::checkpoint::base::Checkpointer;
 use burn::backend::autodiff::checkpoint::strategy::CheckpointStrategy;
@@ -15,7 +16,7 @@ use super::cpu::{self, TrilinearGrid};
 use crate::kernels::flex::{dims, tensor, values};
 
 /// The fused operations (all tensors `f32`, row-major; shapes as in [`super::cpu`]).
-#[backend_extension(Flex, Autodiff)]
+#[backend_extension(Flex, Cube: cfg(any(feature = "wgpu", feature = "cuda")), Autodiff)]
 pub trait FusedBackend: burn::backend::Backend {
     /// Inverse skinning: points `[N, 3]`, weights `[N, K]`, bones `[K, 12]` → canonical points `[N, 3]`.
     fn inverse_skinning(
@@ -59,7 +60,7 @@ pub trait FusedBackend: burn::backend::Backend {
 
 impl FusedBackend for Flex {
     fn inverse_skinning(points: FlexTensor, weights: FlexTensor, bones: FlexTensor) -> FlexTensor {
-        let n = check_skinning(&points, &weights, &bones);
+        let n = check_skinning(dims(&points), dims(&weights), dims(&bones));
         let mut out = vec![0.0; n * 3];
         cpu::inverse_skinning(
             &values(&points),
@@ -76,7 +77,7 @@ impl FusedBackend for Flex {
         bones: FlexTensor,
         grad: FlexTensor,
     ) -> (FlexTensor, FlexTensor) {
-        let n = check_skinning(&points, &weights, &bones);
+        let n = check_skinning(dims(&points), dims(&weights), dims(&bones));
         assert_eq!(dims(&grad), [n, 3], "inverse skinning: output gradient");
         let k = dims(&bones)[0];
         let (mut grad_points, mut grad_weights) = (vec![0.0; n * 3], vec![0.0; n * k]);
@@ -108,7 +109,7 @@ impl FusedBackend for Flex {
     }
 
     fn trilinear(points: FlexTensor, table: FlexTensor, grid: TrilinearGrid) -> FlexTensor {
-        let (n, c) = check_trilinear(&points, &table, &grid);
+        let (n, c) = check_trilinear(dims(&points), dims(&table), &grid);
         let mut out = vec![0.0; n * c];
         cpu::trilinear(&values(&points), &values(&table), &grid, &mut out);
         tensor(out, [n, c])
@@ -120,7 +121,7 @@ impl FusedBackend for Flex {
         grad: FlexTensor,
         grid: TrilinearGrid,
     ) -> FlexTensor {
-        let (n, c) = check_trilinear(&points, &table, &grid);
+        let (n, c) = check_trilinear(dims(&points), dims(&table), &grid);
         assert_eq!(dims(&grad), [n, c], "trilinear: output gradient");
         let mut out = vec![0.0; n * 3];
         cpu::trilinear_points_grad(
@@ -134,14 +135,14 @@ impl FusedBackend for Flex {
     }
 }
 
-/// Checks the shapes of a trilinear call; returns `(N, C)`.
-fn check_trilinear(
-    points: &FlexTensor,
-    table: &FlexTensor,
+/// Checks the shapes `[rows, columns]` of a trilinear call (any backend); returns `(N, C)`.
+pub(super) fn check_trilinear(
+    points: [usize; 2],
+    table: [usize; 2],
     grid: &TrilinearGrid,
 ) -> (usize, usize) {
-    let [n, three] = dims(points);
-    let [nodes, c] = dims(table);
+    let [n, three] = points;
+    let [nodes, c] = table;
     assert_eq!(three, 3, "trilinear: points [N, 3]");
     assert_eq!(
         nodes,
@@ -151,16 +152,16 @@ fn check_trilinear(
     (n, c)
 }
 
-/// Checks the shapes of an inverse-skinning call; returns `N`.
-fn check_skinning(points: &FlexTensor, weights: &FlexTensor, bones: &FlexTensor) -> usize {
-    let [n, three] = dims(points);
-    let [k, twelve] = dims(bones);
+/// Checks the shapes `[rows, columns]` of an inverse-skinning call (any backend); returns `N`.
+pub(super) fn check_skinning(points: [usize; 2], weights: [usize; 2], bones: [usize; 2]) -> usize {
+    let [n, three] = points;
+    let [k, twelve] = bones;
     assert_eq!(
         (three, twelve),
         (3, 12),
         "inverse skinning: points [N, 3], bones [K, 12]"
     );
-    assert_eq!(dims(weights), [n, k], "inverse skinning: weights [N, K]");
+    assert_eq!(weights, [n, k], "inverse skinning: weights [N, K]");
     n
 }
 

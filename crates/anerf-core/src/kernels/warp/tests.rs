@@ -9,26 +9,33 @@ use crate::model::blend::prior_softmax_reference;
 use crate::tensor::{from_rows, to_host};
 use anerf_testing::{assert_close, Tolerance};
 
-/// Values and input gradients of `Σ f(a, b) ⊙ c` for a fixed random `c`.
-struct Differentiated {
-    value: Vec<f32>,
-    grad_a: Vec<f32>,
-    grad_b: Vec<f32>,
+/// Values and input gradients of `Σ f(a, b) ⊙ c` for a fixed random `c` ([`objective_coefficients`]).
+pub(super) struct Differentiated {
+    pub value: Vec<f32>,
+    pub grad_a: Vec<f32>,
+    pub grad_b: Vec<f32>,
 }
 
-fn differentiate(
+/// The fixed coefficients `c` of [`differentiate`]'s objective for an output of `len` values.
+pub(super) fn objective_coefficients(len: usize) -> Vec<f32> {
+    let mut rng = TestRng(99);
+    (0..len).map(|_| rng.range(-1.0, 1.0)).collect()
+}
+
+/// `f` of `rows`-row inputs `a` and `b` on `device` (with autodiff), differentiated.
+pub(super) fn differentiate(
+    device: &Device,
     a: &[f32],
     b: &[f32],
     rows: usize,
     f: impl Fn(Tensor<2>, Tensor<2>) -> Tensor<2>,
 ) -> Differentiated {
-    let device = cpu_device().autodiff();
+    let device = device.clone().autodiff();
     let ta = from_rows(a, rows, a.len() / rows, &device).require_grad();
     let tb = from_rows(b, rows, b.len() / rows, &device).require_grad();
     let out = f(ta.clone(), tb.clone());
     let [_, cols] = out.dims();
-    let mut rng = TestRng(99);
-    let coeff: Vec<f32> = (0..rows * cols).map(|_| rng.range(-1.0, 1.0)).collect();
+    let coeff = objective_coefficients(rows * cols);
     let grads = (out.clone() * from_rows(&coeff, rows, cols, &device))
         .sum()
         .backward();
@@ -39,7 +46,7 @@ fn differentiate(
     }
 }
 
-fn compare(what: &str, got: &Differentiated, expected: &Differentiated, tolerance: f32) {
+pub(super) fn compare(what: &str, got: &Differentiated, expected: &Differentiated, tolerance: f32) {
     let tolerance = Tolerance::Relative(tolerance.into());
     assert_close(
         &format!("{what}: value"),
@@ -62,7 +69,7 @@ fn compare(what: &str, got: &Differentiated, expected: &Differentiated, toleranc
 }
 
 /// Points and skinning-like weights for `n` samples of a random posed skeleton's 24 bones.
-fn skinning_inputs(seed: u64, n: usize) -> (BoneTransforms, Vec<f32>, Vec<f32>) {
+pub(super) fn skinning_inputs(seed: u64, n: usize) -> (BoneTransforms, Vec<f32>, Vec<f32>) {
     let mut rng = TestRng(seed);
     let (skeleton, pose) = random_skeleton_and_pose(&mut rng);
     let bones = skeleton
@@ -73,16 +80,21 @@ fn skinning_inputs(seed: u64, n: usize) -> (BoneTransforms, Vec<f32>, Vec<f32>) 
     (bones, points, weights)
 }
 
-fn skinning(
+/// Inverse skinning on `device`, by the fused kernel or the tensor reference, differentiated.
+pub(super) fn skinning(
+    device: &Device,
     bones: &BoneTransforms,
     points: &[f32],
     weights: &[f32],
     fused: bool,
 ) -> Differentiated {
     let n = points.len() / 3;
-    differentiate(points, weights, n, |p, w| {
+    differentiate(device, points, weights, n, |p, w| {
         let matrices = BoneMatrices::new(bones, &p.device());
-        assert!(available(&p.device()), "the test device runs the kernels");
+        assert!(
+            crate::kernels::available(&p.device()),
+            "the test device runs the kernels"
+        );
         if fused {
             matrices.inverse(p, w)
         } else {
@@ -95,15 +107,14 @@ fn skinning(
 fn inverse_skinning_matches_the_tensor_reference_in_value_and_gradients() {
     // More points than one kernel block, so that several rayon tasks split them.
     let (bones, points, weights) = skinning_inputs(21, 1_500);
-    let got = skinning(&bones, &points, &weights, true);
-    let expected = skinning(&bones, &points, &weights, false);
+    let got = skinning(&cpu_device(), &bones, &points, &weights, true);
+    let expected = skinning(&cpu_device(), &bones, &points, &weights, false);
     compare("inverse skinning", &got, &expected, 2e-5);
 }
 
-/// Weights split between a bone and its half-turn leave a singular blended rotation: the guard replaces the
-/// determinant, and neither implementation passes a gradient through the replaced value.
-#[test]
-fn guarded_singular_blends_match_the_reference() {
+/// Three bones, points and weights whose rows 0 and 1 blend a bone with its half-turn (a singular
+/// rotation, guarded) and whose row 2 is an ordinary blend.
+pub(super) fn singular_blends() -> (BoneTransforms, [f32; 9], [f32; 9]) {
     let bones = BoneTransforms::from_matrices(vec![
         Mat4::from_translation(Vec3::new(0.1, 0.0, 0.0)),
         Mat4::from_rotation_z(std::f32::consts::PI),
@@ -111,15 +122,22 @@ fn guarded_singular_blends_match_the_reference() {
     ])
     .expect("finite transforms");
     let points = [0.2, -0.4, 0.5, 1.0, 1.0, 1.0, -0.3, 0.1, 0.0];
-    // Rows 0 and 1 are singular (guarded), row 2 is an ordinary blend.
     let weights = [0.5, 0.5, 0.0, 0.5, 0.5, 0.0, 0.2, 0.1, 0.7];
-    let got = skinning(&bones, &points, &weights, true);
-    let expected = skinning(&bones, &points, &weights, false);
+    (bones, points, weights)
+}
+
+/// Weights split between a bone and its half-turn leave a singular blended rotation: the guard replaces the
+/// determinant, and neither implementation passes a gradient through the replaced value.
+#[test]
+fn guarded_singular_blends_match_the_reference() {
+    let (bones, points, weights) = singular_blends();
+    let got = skinning(&cpu_device(), &bones, &points, &weights, true);
+    let expected = skinning(&cpu_device(), &bones, &points, &weights, false);
     assert!(got.value.iter().chain(&got.grad_b).all(|v| v.is_finite()));
     compare("guarded inverse skinning", &got, &expected, 2e-5);
 }
 
-fn softmax_inputs(seed: u64, n: usize, k: usize) -> (Vec<f32>, Vec<f32>) {
+pub(super) fn softmax_inputs(seed: u64, n: usize, k: usize) -> (Vec<f32>, Vec<f32>) {
     let mut rng = TestRng(seed);
     let mut prior: Vec<f32> = (0..n).flat_map(|_| rng.weights(k)).collect();
     // Exact zeros, as outside a joint's support: log(ε) must stay finite.
@@ -132,8 +150,8 @@ fn softmax_inputs(seed: u64, n: usize, k: usize) -> (Vec<f32>, Vec<f32>) {
 fn prior_softmax_matches_the_tensor_reference_in_value_and_gradients() {
     let (n, k) = (1_200, 24);
     let (prior, residual) = softmax_inputs(7, n, k);
-    let got = differentiate(&prior, &residual, n, prior_softmax);
-    let expected = differentiate(&prior, &residual, n, prior_softmax_reference);
+    let got = differentiate(&cpu_device(), &prior, &residual, n, prior_softmax);
+    let expected = differentiate(&cpu_device(), &prior, &residual, n, prior_softmax_reference);
     for row in got.value.chunks_exact(k) {
         assert!(
             (row.iter().sum::<f32>() - 1.0).abs() < 1e-5,
