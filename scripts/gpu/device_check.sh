@@ -7,6 +7,8 @@
 #   2. `anerf bench` on every device of DEVICES for the `fast` and `paper` presets,
 #   3. the demo end to end on the first device,
 #   4. scripts/bench/torch_reference.py on the same networks and device (when PyTorch is there),
+#   5. data-parallel training (`anerf train --devices`, Burn's all-reduce; on cuda:0, or cuda:0,cuda:1 where
+#      two GPUs exist) against one-device training of the same seed: both runs' first losses,
 #
 # and writes figures.json (every figure, with the GPU's name) and check.log into OUT. Each step has a time
 # limit and a failed step is recorded, not fatal, so one run brings back everything that worked. The whole
@@ -124,6 +126,33 @@ else
     skipped torch "$python has no torch"
 fi
 
+# 5. Data-parallel training against one device, the same seed: the first steps' losses must agree.
+if [ "$first" = cuda ]; then
+    parallel=cuda:0
+    [ "$(nvidia-smi -L 2>/dev/null | wc -l)" -ge 2 ] && parallel=cuda:0,cuda:1
+    [ -d "$work/ddp_subject" ] || "$anerf" synth --preset tiny --out "$work/ddp_subject" 2>>"$log"
+    short_run() {
+        "$anerf" train --data "$work/ddp_subject" --preset tiny --iterations 6 --quiet \
+            --set train.log_every=1 "$@"
+    }
+    step ddp_one_device 180 "$work/ddp_one.txt" short_run --device cuda --out "$work/ddp_one"
+    step ddp_parallel 240 "$work/ddp_parallel.txt" short_run --devices "$parallel" --out "$work/ddp_parallel"
+    python3 - "$work" "$parallel" >"$out/ddp.json" 2>>"$log" <<'EOF'
+import json, pathlib, sys
+work, devices = pathlib.Path(sys.argv[1]), sys.argv[2]
+def losses(run):
+    log = work / run / "metrics.jsonl"
+    if not log.is_file():
+        return []
+    return [json.loads(l)["loss"] for l in log.read_text().splitlines() if l.strip()]
+one, parallel = losses("ddp_one"), losses("ddp_parallel")
+worst = max((abs(a - b) / max(abs(a), 1e-12) for a, b in zip(one, parallel)), default=None)
+print(json.dumps({"devices": devices, "one_device": one, "parallel": parallel, "worst_relative": worst}))
+EOF
+else
+    skipped ddp "data-parallel training needs cuda as the first of DEVICES (Burn 0.22.1 all-reduces on CUDA only)"
+fi
+
 # One JSON of everything (Python's standard library only).
 python3 - "$out" <<'EOF'
 import json, pathlib, sys
@@ -144,6 +173,7 @@ figures = {
     "gpu": (out / "gpu.txt").read_text().strip(),
     "steps": steps,
     "demo": {"novel_view": read("demo_novel_view.json"), "novel_pose": read("demo_novel_pose.json")},
+    "data_parallel": read("ddp.json"),
 }
 (out / "figures.json").write_text(json.dumps(figures, indent=1))
 failed = [s["step"] for s in steps if s["outcome"] not in ("passed", "skipped")]

@@ -81,6 +81,81 @@ impl DeviceChoice {
     }
 }
 
+/// One device of a data-parallel run, as `--devices` names it: `cuda:1`, or a backend alone for its first
+/// device (`cuda` is `cuda:0`). Only CUDA devices take an ordinal other than 0.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct DeviceSpec {
+    pub choice: DeviceChoice,
+    pub ordinal: usize,
+}
+
+impl DeviceSpec {
+    /// The Burn device (without autodiff), or an error naming the feature to build with.
+    pub fn device(self) -> Result<Device, String> {
+        match (self.choice, self.ordinal) {
+            (_, 0) => self.choice.device(),
+            #[cfg(feature = "cuda")]
+            (DeviceChoice::Cuda, n) => Ok(Device::cuda(n)),
+            #[allow(unreachable_patterns)]
+            (DeviceChoice::Cuda, _) => DeviceChoice::Cuda.device(),
+            (other, n) => Err(format!(
+                "device '{other}:{n}': only cuda devices take an ordinal (use '{other}')"
+            )),
+        }
+    }
+
+    /// Checks the devices of one data-parallel run: at least one, all CUDA devices (Burn 0.22.1 all-reduces
+    /// gradients between CUDA devices only, through NCCL), none twice.
+    pub fn check_data_parallel(devices: &[DeviceSpec]) -> Result<(), String> {
+        if devices.is_empty() {
+            return Err("--devices names no device".into());
+        }
+        if let Some(other) = devices.iter().find(|d| d.choice != DeviceChoice::Cuda) {
+            return Err(format!(
+                "--devices {other}: data-parallel training all-reduces the gradients, which Burn 0.22.1 \
+                 does only between CUDA devices (NCCL); name cuda:N devices, or train on one device with \
+                 --device"
+            ));
+        }
+        for (i, d) in devices.iter().enumerate() {
+            if let Some(j) = devices[..i].iter().position(|e| e == d) {
+                return Err(format!(
+                    "--devices names {d} twice (entries {} and {})",
+                    j + 1,
+                    i + 1
+                ));
+            }
+        }
+        Ok(())
+    }
+}
+
+impl fmt::Display for DeviceSpec {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write!(f, "{}:{}", self.choice, self.ordinal)
+    }
+}
+
+impl FromStr for DeviceSpec {
+    type Err = String;
+
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        let (name, ordinal) = match s.split_once(':') {
+            Some((name, n)) => {
+                let ordinal = n.parse().map_err(|_| {
+                    format!("device '{s}': expected a device ordinal after ':', e.g. cuda:1")
+                })?;
+                (name, ordinal)
+            }
+            None => (s, 0),
+        };
+        Ok(Self {
+            choice: name.parse()?,
+            ordinal,
+        })
+    }
+}
+
 /// The CPU device (flex) for host-side tensor work and tests, whatever other backends are compiled
 /// (`Device::default()` would prefer a GPU backend when one is compiled in).
 pub fn cpu_device() -> Device {
@@ -131,6 +206,50 @@ mod tests {
         let err = "cuda9".parse::<DeviceChoice>().unwrap_err();
         assert!(err.contains("cuda,") || err.ends_with("cuda"), "{err}");
         assert!(err.contains("cuda9") && err.contains("flex"), "{err}");
+    }
+
+    #[test]
+    fn device_specs_parse_with_and_without_an_ordinal() {
+        let cuda1: DeviceSpec = "cuda:1".parse().unwrap();
+        assert_eq!((cuda1.choice, cuda1.ordinal), (DeviceChoice::Cuda, 1));
+        assert_eq!("flex".parse::<DeviceSpec>().unwrap().to_string(), "flex:0");
+        let bad = "cuda:x".parse::<DeviceSpec>().unwrap_err();
+        assert!(bad.contains("cuda:x") && bad.contains("ordinal"), "{bad}");
+        assert!("tpu:0".parse::<DeviceSpec>().unwrap_err().contains("tpu"));
+        let flex1 = DeviceSpec {
+            choice: DeviceChoice::Flex,
+            ordinal: 1,
+        };
+        assert!(flex1.device().unwrap_err().contains("only cuda"));
+        assert!(DeviceSpec {
+            choice: DeviceChoice::Flex,
+            ordinal: 0
+        }
+        .device()
+        .is_ok());
+    }
+
+    #[test]
+    fn a_data_parallel_run_takes_distinct_cuda_devices() {
+        let specs =
+            |s: &str| -> Vec<DeviceSpec> { s.split(',').map(|d| d.parse().unwrap()).collect() };
+        let check = |s: &str| DeviceSpec::check_data_parallel(&specs(s));
+        assert!(check("cuda:0,cuda:1").is_ok() && check("cuda:3").is_ok() && check("cuda").is_ok());
+        assert!(DeviceSpec::check_data_parallel(&[])
+            .unwrap_err()
+            .contains("no device"));
+        let twice = check("cuda:0,cuda:1,cuda:0").unwrap_err();
+        assert!(
+            twice.contains("cuda:0 twice") && twice.contains("1 and 3"),
+            "{twice}"
+        );
+        for other in ["flex", "cuda:0,flex", "wgpu:0,wgpu:1"] {
+            let err = check(other).unwrap_err();
+            assert!(
+                err.contains("only between CUDA devices") && err.contains("--device"),
+                "{err}"
+            );
+        }
     }
 
     #[test]

@@ -24,8 +24,12 @@ pub struct Experiment {
     pub train_views: Vec<ViewId>,
     pub test_views: Vec<ViewId>,
     pub device: Device,
-    canonical: CanonicalInputs,
-    frames: HashMap<FrameId, FrameInputs>,
+    /// The devices of a data-parallel fit (`device` first); `None` for a fit on `device` alone.
+    data_parallel: Option<Vec<Device>>,
+    /// The canonical body on each device (the experiment's, then the other devices of a data-parallel fit).
+    canonical: Vec<CanonicalInputs>,
+    /// Frame inputs uploaded so far, by device (the experiment's, then the other devices of a data-parallel fit) and frame.
+    frames: HashMap<(usize, FrameId), FrameInputs>,
 }
 
 /// The frame positions of a range, every `interval`-th, cut to the frames that exist.
@@ -168,9 +172,33 @@ impl Experiment {
             train_frames,
             novel_frames,
             device,
-            canonical,
+            data_parallel: None,
+            canonical: vec![canonical],
             frames: HashMap::new(),
         })
+    }
+
+    /// Trains data-parallel on `devices` (with autodiff; the experiment's own device first, as
+    /// `training::parallel` fits): uploads the canonical body to the others.
+    pub fn with_data_parallel(mut self, devices: Vec<Device>) -> Result<Self> {
+        if devices.first() != Some(&self.device) {
+            bail!("a data-parallel fit runs its first replica on the experiment's device");
+        }
+        let volume = self.prepared.canonical_volume()?;
+        for device in &devices[1..] {
+            self.canonical.push(CanonicalInputs {
+                volume: volume.to_tensor(device),
+                bounds: self.prepared.canonical.bounds,
+            });
+        }
+        self.data_parallel = Some(devices);
+        Ok(self)
+    }
+
+    /// The devices of a data-parallel fit, `None` for a fit on one device without Burn's distributed data
+    /// parallel.
+    pub fn data_parallel(&self) -> Option<&[Device]> {
+        self.data_parallel.as_deref()
     }
 
     /// Sizes of the model this experiment trains.
@@ -183,7 +211,12 @@ impl Experiment {
 
     /// The canonical body on the device.
     pub fn canonical(&self) -> &CanonicalInputs {
-        &self.canonical
+        &self.canonical[0]
+    }
+
+    /// The canonical body on the device of replica `replica` of a data-parallel fit (0: the experiment's).
+    pub fn canonical_on(&self, replica: usize) -> &CanonicalInputs {
+        &self.canonical[replica]
     }
 
     /// How frame `id` is conditioned: its own codes if it is a training frame, the stage-2 codes and
@@ -209,22 +242,38 @@ impl Experiment {
 
     /// Model inputs of frame `id` on the device (uploaded on first use; the clone shares the tensors).
     pub fn frame_inputs(&mut self, id: FrameId) -> Result<FrameInputs> {
-        if !self.frames.contains_key(&id) {
+        self.frame_inputs_on(id, 0)
+    }
+
+    /// The device of replica `replica` of a data-parallel fit (0: the experiment's).
+    pub fn replica_device(&self, replica: usize) -> &Device {
+        match (replica, &self.data_parallel) {
+            (0, _) => &self.device,
+            (k, Some(devices)) => &devices[k],
+            (k, None) => panic!("replica {k} of a fit on one device"),
+        }
+    }
+
+    /// Model inputs of frame `id` on the device of replica `replica` of a data-parallel fit (0: the
+    /// experiment's), uploaded on first use.
+    pub fn frame_inputs_on(&mut self, id: FrameId, replica: usize) -> Result<FrameInputs> {
+        if !self.frames.contains_key(&(replica, id)) {
+            let device = self.replica_device(replica).clone();
             let (code, appearance) = self.frame_code(id)?;
             let frame = self
                 .prepared
                 .frame(id)
                 .with_context(|| format!("{id} was not prepared"))?;
             let inputs = FrameInputs {
-                bones: BoneMatrices::new(&frame.bones, &self.device),
+                bones: BoneMatrices::new(&frame.bones, &device),
                 global: frame.pose.global,
-                volume: self.prepared.volume(id)?.to_tensor(&self.device),
+                volume: self.prepared.volume(id)?.to_tensor(&device),
                 code,
                 appearance,
             };
-            self.frames.insert(id, inputs);
+            self.frames.insert((replica, id), inputs);
         }
-        Ok(self.frames[&id].clone())
+        Ok(self.frames[&(replica, id)].clone())
     }
 
     /// World-space box of prepared frame `id` (metres).

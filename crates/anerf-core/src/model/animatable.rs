@@ -15,7 +15,10 @@ use crate::geometry::skinning::{
 };
 use crate::geometry::VolumeTensor;
 use crate::geometry::{Aabb, GlobalTransform};
-use crate::render::{blend_consistency, composite, stratified_depths, RayBatch};
+use crate::render::{
+    blend_consistency, blend_consistency_parts, composite, stratified_depths, ConsistencyParts,
+    RayBatch,
+};
 use crate::tensor::to_host;
 
 /// How many frames and joints the model is built for.
@@ -85,15 +88,48 @@ pub struct ConsistencyTerms {
     pub canonical: Tensor<2>,
     /// `[M, 1]` 1 where the sample counts: raw density > 0 inside the canonical box, plus the densest sample.
     pub mask: Tensor<2>,
+    /// `[1]` samples with raw density > 0: the mask's count without its densest-sample guard (which adds
+    /// a sample only where none is positive).
+    pub positive: Tensor<1>,
+    /// `[1]` the greatest raw density (the densest sample's, which the guard selects).
+    pub densest: Tensor<1>,
     /// `[M', K]` the frame field's residual `F` at the samples (neural field only), for its penalty.
     pub residual: Option<Tensor<2>>,
 }
 
 impl ConsistencyTerms {
+    /// The terms of samples with observation and canonical weights `[M, K]` and raw density `[M, 1]`
+    /// (zero outside the canonical box), which selects them ([`consistency_mask`]).
+    pub fn new(
+        observed: Tensor<2>,
+        canonical: Tensor<2>,
+        density: Tensor<2>,
+        residual: Option<Tensor<2>>,
+    ) -> Self {
+        Self {
+            observed,
+            canonical,
+            positive: density.clone().detach().greater_elem(0.0).float().sum(),
+            densest: density.clone().detach().max(),
+            mask: consistency_mask(density),
+            residual,
+        }
+    }
+
     /// `mean(F²)` of the residual (zero without the neural field): the penalty that keeps the learned
     /// correction near zero, i.e. the weights near the body model's, where the images do not ask otherwise.
     pub fn residual_penalty(&self) -> Tensor<1> {
         residual_penalty(self.residual.clone(), &self.observed.device())
+    }
+
+    /// The parts of [`Self::loss`] (its numerator and the count of its denominator).
+    pub fn loss_parts(&self, kind: ConsistencyLoss) -> ConsistencyParts {
+        blend_consistency_parts(
+            self.observed.clone(),
+            self.canonical.clone(),
+            self.mask.clone(),
+            kind,
+        )
     }
 
     /// The loss value of kind `kind`.
@@ -520,11 +556,13 @@ impl AnimatableNerf {
             )
         };
 
-        let consistency = with_consistency.then(|| ConsistencyTerms {
-            observed: shaded.weights.clone(),
-            canonical: self.canonical_weights(shaded.canonical_points.clone(), canonical),
-            mask: consistency_mask(shaded.density.clone()),
-            residual: shaded.residual.clone(),
+        let consistency = with_consistency.then(|| {
+            ConsistencyTerms::new(
+                shaded.weights.clone(),
+                self.canonical_weights(shaded.canonical_points.clone(), canonical),
+                shaded.density.clone(),
+                shaded.residual.clone(),
+            )
         });
         let density = Tensor::<2>::zeros([n, 1], &device).select_assign(
             0,

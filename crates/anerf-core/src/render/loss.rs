@@ -22,7 +22,27 @@ pub fn blend_consistency(
     mask: Tensor<2>,
     kind: ConsistencyLoss,
 ) -> Tensor<1> {
-    let [_, k] = observed.dims();
+    let k = observed.dims()[1];
+    let parts = blend_consistency_parts(observed, canonical, mask, kind);
+    parts.sum / (parts.selected.clamp_min(1.0) * k as f32)
+}
+
+/// [`blend_consistency`]'s numerator and the count its denominator is made of, so that the shards of one
+/// batch can divide their sums by the count over all of them.
+pub struct ConsistencyParts {
+    /// `Σ` over the selected points × K of the per-entry loss, `[1]`.
+    pub sum: Tensor<1>,
+    /// Selected points, `[1]`.
+    pub selected: Tensor<1>,
+}
+
+/// The parts of [`blend_consistency`]: its loss is `sum / (max(selected, 1) · K)`.
+pub fn blend_consistency_parts(
+    observed: Tensor<2>,
+    canonical: Tensor<2>,
+    mask: Tensor<2>,
+    kind: ConsistencyLoss,
+) -> ConsistencyParts {
     let d = (observed - canonical).abs();
     let per = match kind {
         ConsistencyLoss::L1 => d,
@@ -31,8 +51,10 @@ pub fn blend_consistency(
             inner.clone().powi_scalar(2) * 0.5 + (d - inner)
         }
     };
-    let count = mask.clone().sum().clamp_min(1.0) * k as f32;
-    (per * mask).sum() / count
+    ConsistencyParts {
+        sum: (per * mask.clone()).sum(),
+        selected: mask.sum(),
+    }
 }
 
 #[cfg(test)]

@@ -12,6 +12,7 @@ mod stages;
 use std::path::Path;
 
 use anerf_core::device::probe::checked_device;
+use anerf_core::device::DeviceSpec;
 use anerf_core::model::AnimatableNerf;
 use anerf_core::DeviceChoice;
 use anyhow::{bail, Context, Result};
@@ -36,6 +37,8 @@ use crate::stage::Stage;
 pub struct JobOptions {
     /// Compute backend; `None` runs on the config's `device`.
     pub device: Option<DeviceChoice>,
+    /// Train data-parallel on these devices (`anerf train --devices`) instead of on `device`.
+    pub devices: Option<Vec<DeviceSpec>>,
     /// `section.key=value` overrides over the config (`--set`).
     pub set: Vec<String>,
     /// Draw progress bars, and name the GPU adapter a run uses.
@@ -52,6 +55,17 @@ impl JobOptions {
 /// The device named by the options, else by the config.
 pub fn device(config: &ExperimentConfig, options: &JobOptions) -> Result<Device> {
     open_device(options.device.unwrap_or(config.device), options)
+}
+
+/// The devices of a data-parallel fit (with autodiff), checked ([`DeviceSpec::check_data_parallel`]) and
+/// their backend probed as [`open_device`] does.
+pub fn data_parallel_devices(specs: &[DeviceSpec], options: &JobOptions) -> Result<Vec<Device>> {
+    DeviceSpec::check_data_parallel(specs).map_err(anyhow::Error::msg)?;
+    open_device(specs[0].choice, options)?;
+    specs
+        .iter()
+        .map(|s| Ok(s.device().map_err(anyhow::Error::msg)?.autodiff()))
+        .collect()
 }
 
 /// The device of `choice`. A GPU backend is first checked in a child process that re-runs the current

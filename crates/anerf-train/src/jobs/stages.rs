@@ -5,7 +5,7 @@ use std::sync::atomic::AtomicBool;
 
 use anyhow::{bail, Result};
 
-use super::{device, open_run, JobOptions};
+use super::{data_parallel_devices, device, open_run, JobOptions};
 use crate::checkpoint::Checkpoint;
 use crate::config::ExperimentConfig;
 use crate::experiment::Experiment;
@@ -26,6 +26,12 @@ pub fn train(
     max_steps: Option<usize>,
     stop: &AtomicBool,
 ) -> Result<StageOutcome> {
+    // The devices first: a refused list reads and writes nothing.
+    let parallel = options
+        .devices
+        .as_deref()
+        .map(|specs| data_parallel_devices(specs, options))
+        .transpose()?;
     run_start::check_stage1(run, start)?;
     if start == RunStart::Resume {
         let existing = RunDir::open(run)?;
@@ -38,8 +44,14 @@ pub fn train(
     }
     config.dataset.make_paths_absolute()?;
     memory::check(&config, Work::Train)?;
-    let device = device(&config, options)?.autodiff();
-    let mut exp = Experiment::open(config, device, options.progress)?;
+    let mut exp = match parallel {
+        None => {
+            let device = device(&config, options)?.autodiff();
+            Experiment::open(config, device, options.progress)?
+        }
+        Some(devices) => Experiment::open(config, devices[0].clone(), options.progress)?
+            .with_data_parallel(devices)?,
+    };
     let run = run_start::begin_stage1(run, start)?;
     let result = run.write_config(&exp.config).and_then(|()| {
         train_stage1(

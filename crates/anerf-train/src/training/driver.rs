@@ -42,8 +42,9 @@ pub(super) trait Step {
     fn counters(&mut self) -> &mut LoopState;
     /// The loss of the next step, on the device, and its values for the log (`loss` on the host).
     fn loss(&mut self, model: &AnimatableNerf) -> Result<(Tensor<1>, StepValues)>;
-    /// After the optimiser step that completed step `step` (stage 1 refreshes its occupancy grid).
-    fn after_step(&mut self, _model: &mut AnimatableNerf, _step: usize) {}
+    /// After the optimiser step that completed step `step`, on each copy of the model (replica `replica` of
+    /// a data-parallel fit; stage 1 refreshes its occupancy grid).
+    fn after_step(&mut self, _model: &mut AnimatableNerf, _replica: usize, _step: usize) {}
     /// A held-out PSNR at `step`, when the stage validates.
     fn validate(&mut self, _model: &AnimatableNerf, _step: usize) -> Result<Option<f64>> {
         Ok(None)
@@ -107,13 +108,80 @@ impl<'a> Record<'a> {
     }
 }
 
+/// How one step of a fit went.
+pub(super) enum Advance {
+    /// The optimiser stepped; the step's values.
+    Stepped(StepValues),
+    /// The loss was not finite (this value); nothing was stepped.
+    NonFinite(f32),
+}
+
+/// What a fit optimises and how a step advances it: one model and its optimiser ([`Single`]), or the
+/// replicas of a data-parallel run ([`super::parallel::Replicas`]).
+pub(super) trait Fit<S: Step> {
+    /// Computes the step's loss and, when it is finite, steps the optimiser(s) at learning rate `lr`.
+    fn advance(&mut self, step: &mut S, lr: f64) -> Result<Advance>;
+    /// The model validated, checkpointed and returned.
+    fn model(&self) -> &AnimatableNerf;
+    /// Its optimiser, checkpointed with it.
+    fn optim(&self) -> &ModuleOptimizer;
+    /// Every copy of the model, in replica order.
+    fn models_mut(&mut self) -> Vec<&mut AnimatableNerf>;
+    fn into_model(self) -> AnimatableNerf;
+}
+
+/// One model and its optimiser on one device.
+pub(super) struct Single {
+    /// Always present: taken out only for the optimiser's step, which consumes and returns it (a clone
+    /// would keep the parameters' buffers shared and stop their in-place updates).
+    model: Option<AnimatableNerf>,
+    optim: ModuleOptimizer,
+}
+
+impl Single {
+    pub fn new(model: AnimatableNerf, optim: ModuleOptimizer) -> Self {
+        Self {
+            model: Some(model),
+            optim,
+        }
+    }
+}
+
+impl<S: Step> Fit<S> for Single {
+    fn advance(&mut self, step: &mut S, lr: f64) -> Result<Advance> {
+        let (loss, values) = step.loss(Fit::<S>::model(self))?;
+        if !values.loss.is_finite() {
+            return Ok(Advance::NonFinite(values.loss));
+        }
+        let model = self.model.take().expect("the model is present");
+        let grads = GradientsParams::from_grads(loss.backward(), &model);
+        self.model = Some(self.optim.step(lr, model, grads));
+        Ok(Advance::Stepped(values))
+    }
+
+    fn model(&self) -> &AnimatableNerf {
+        self.model.as_ref().expect("the model is present")
+    }
+
+    fn optim(&self) -> &ModuleOptimizer {
+        &self.optim
+    }
+
+    fn models_mut(&mut self) -> Vec<&mut AnimatableNerf> {
+        self.model.iter_mut().collect()
+    }
+
+    fn into_model(self) -> AnimatableNerf {
+        self.model.expect("the model is present")
+    }
+}
+
 /// Runs `step` from its counters to `cfg.iterations` steps (or a stop) and returns the model and how the
 /// fit ended. For a recorded step ([`Step::record`]), every `cfg.checkpoint_every` steps and at the end a
 /// checkpoint is written and every `cfg.log_every` steps a line of `metrics.jsonl`; else nothing is written.
-pub(super) fn drive(
-    step: &mut impl Step,
-    mut model: AnimatableNerf,
-    mut optim: ModuleOptimizer,
+pub(super) fn drive<S: Step>(
+    step: &mut S,
+    mut fit: impl Fit<S>,
     cfg: &StageConfig,
     options: TrainOptions,
     stop: &AtomicBool,
@@ -131,12 +199,12 @@ pub(super) fn drive(
             interrupted = true;
             break;
         }
-        let (loss, values) = step.loss(&model)?;
-        if !values.loss.is_finite() {
-            bail!(
-                "{} stopped at step {done}: the loss is {}; {}",
+        let lr = learning_rate(cfg, done);
+        let values = match fit.advance(step, lr)? {
+            Advance::Stepped(values) => values,
+            Advance::NonFinite(loss) => bail!(
+                "{} stopped at step {done}: the loss is {loss}; {}",
                 step.label(),
-                values.loss,
                 match step.record() {
                     Some((r, _)) => format!(
                         "the last good checkpoint in {} is kept (lower the learning rate or check the \
@@ -145,23 +213,23 @@ pub(super) fn drive(
                     ),
                     None => "lower the learning rate".into(),
                 }
-            );
-        }
-        let lr = learning_rate(cfg, done);
-        let grads = GradientsParams::from_grads(loss.backward(), &model);
-        model = optim.step(lr, model, grads);
+            ),
+        };
         let done = done + 1;
         step.counters().step = done;
-        step.after_step(&mut model, done);
+        for (replica, model) in fit.models_mut().into_iter().enumerate() {
+            step.after_step(model, replica, done);
+        }
         last_loss = values.loss;
         step.counters().window.add(values);
 
-        let validation_psnr = if cfg.validate_every > 0 && done % cfg.validate_every == 0 {
-            step.validate(&model, done)?
+        let validation_psnr = if cfg.validate_every > 0 && done.is_multiple_of(cfg.validate_every) {
+            step.validate(fit.model(), done)?
         } else {
             None
         };
-        if done % cfg.log_every == 0 || done == cfg.iterations || validation_psnr.is_some() {
+        if done.is_multiple_of(cfg.log_every) || done == cfg.iterations || validation_psnr.is_some()
+        {
             let means = step.counters().window.close();
             let (rendering, message) = step.figures(&means, validation_psnr);
             bar.report(done, &message);
@@ -179,11 +247,11 @@ pub(super) fn drive(
             step.counters().plateau.update(done, means.loss, cfg);
         }
         bar.set_step(done);
-        if cfg.checkpoint_every > 0 && done % cfg.checkpoint_every == 0 {
-            save(step, &model, &optim)?;
+        if cfg.checkpoint_every > 0 && done.is_multiple_of(cfg.checkpoint_every) {
+            save(step, fit.model(), fit.optim())?;
         }
     }
-    save(step, &model, &optim)?;
+    save(step, fit.model(), fit.optim())?;
     let steps = step.counters().step;
     let ending = match (interrupted, step.counters().plateau.reached) {
         (true, _) => "interrupted",
@@ -197,7 +265,7 @@ pub(super) fn drive(
         interrupted,
         seconds: started.elapsed().as_secs_f64(),
     };
-    Ok((model, outcome))
+    Ok((fit.into_model(), outcome))
 }
 
 /// A checkpoint of the step's state, when the fit is recorded.

@@ -2,9 +2,10 @@
 //! cadence, validation and progress, and one step per fit — stage 1 fits the canonical radiance field
 //! and the blend-weight fields to the training video (`stage1`); stage 2 fits blend-weight fields for
 //! novel poses against the frozen canonical field, for the run's novel-pose frames or for poses from
-//! files (`stage2`).
+//! files (`stage2`). A stage-1 fit on several devices runs data-parallel (`parallel`).
 
 mod driver;
+mod parallel;
 pub mod schedule;
 pub mod seeds;
 mod stage1;
@@ -18,7 +19,7 @@ use burn::optim::{AdamConfig, ModuleOptimizer};
 use burn::prelude::Device;
 
 pub use driver::LoopState;
-pub use stage1::{silhouette_loss, train_stage1};
+pub use stage1::train_stage1;
 pub use stage2::{fit_pose_codes, train_stage2, PoseTarget, PoseTargets};
 
 use crate::checkpoint::{Checkpoint, TrainerState};

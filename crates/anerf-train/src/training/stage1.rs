@@ -3,18 +3,20 @@
 
 use std::sync::atomic::AtomicBool;
 
-use anerf_core::model::AnimatableNerf;
-use anerf_core::render::{color_mse, psnr_from_mse, RayBatch};
+use anerf_core::model::{AnimatableNerf, FrameInputs};
+use anerf_core::render::{psnr_from_mse, HostRays, RayBatch};
 use anerf_core::tensor::{from_rows, to_host};
+use anerf_core::{FrameId, ViewId};
 use anerf_data::{RaySampler, SamplerOptions};
 use anerf_eval::images::{write_png, PngDepth};
 use anerf_eval::ImageMetrics;
-use anyhow::{Context, Result};
+use anyhow::{bail, Context, Result};
 use burn::prelude::*;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
-use super::driver::{drive, LoopState, Record, RenderFigures, Step};
+use super::driver::{drive, LoopState, Record, RenderFigures, Single, Step};
+use super::parallel::{whole_loss, Replicas, Shard, ShardedStep};
 use super::seeds::{stream_seed, Stream};
 use super::window::{StepValues, WindowMeans};
 use super::{check_sizes, optimizer, resume_point, StageOutcome, TrainOptions};
@@ -41,37 +43,79 @@ pub fn train_stage1(
         check_sizes(&resumed.2, exp)?;
         resumed
     } else {
-        let seed = exp.config.seed;
-        device.seed(stream_seed(seed, Stream::Stage1Device));
-        let sampler = RaySampler::new(
-            stream_seed(seed, Stream::Stage1Rays),
-            SamplerOptions {
-                rays: cfg.batch,
-                skip_mask_edges: cfg.skip_mask_edges,
-                ..SamplerOptions::default()
-            },
-        );
-        let state = TrainerState {
-            stage: Stage::Train,
-            counters: LoopState::default(),
-            model: model_cfg.clone(),
-            training_frames: exp.train_frames.len(),
-            joints: exp.prepared.skeleton.num_joints(),
-            novel_frames: None,
-            sampler: Some(sampler),
-            rng: ChaCha8Rng::seed_from_u64(stream_seed(seed, Stream::Stage1Host)),
-        };
-        let model = AnimatableNerf::new(&model_cfg, exp.model_sizes(), &device);
+        let (model, state) = fresh_start(exp, &cfg);
         (model, optimizer(cfg.grad_clip), state)
     };
+    let devices = exp.data_parallel().map(<[Device]>::to_vec);
     let mut step = Stage1 {
         record: Record::open(run, Stage::Train, state.counters.step)?,
         exp,
         cfg: &cfg,
         state,
     };
-    let (_, outcome) = drive(&mut step, model, optim, &cfg, options, stop)?;
+    let (_, outcome) = match devices {
+        None => drive(&mut step, Single::new(model, optim), &cfg, options, stop)?,
+        Some(devices) => {
+            if cfg.batch < devices.len() {
+                bail!(
+                    "train.batch = {}: a data-parallel fit gives each of its {} devices at least one ray",
+                    cfg.batch,
+                    devices.len()
+                );
+            }
+            // Every replica's optimiser starts as the first one's: fresh, or restored on its device.
+            let mut optims = vec![optim];
+            for device in &devices[1..] {
+                optims.push(if options.resume {
+                    resume_point(run, Stage::Train, &model_cfg, cfg.grad_clip, device)?.1
+                } else {
+                    optimizer(cfg.grad_clip)
+                });
+            }
+            let replicas = Replicas::new(model, optims, &devices);
+            drive(&mut step, replicas, &cfg, options, stop)?
+        }
+    };
     Ok(outcome)
+}
+
+/// A fresh stage-1 model (seeded by the experiment) and the trainer state that starts it.
+fn fresh_start(exp: &Experiment, cfg: &StageConfig) -> (AnimatableNerf, TrainerState) {
+    let model_cfg = &exp.config.model;
+    let device = &exp.device;
+    let seed = exp.config.seed;
+    device.seed(stream_seed(seed, Stream::Stage1Device));
+    let sampler = RaySampler::new(
+        stream_seed(seed, Stream::Stage1Rays),
+        SamplerOptions {
+            rays: cfg.batch,
+            skip_mask_edges: cfg.skip_mask_edges,
+            ..SamplerOptions::default()
+        },
+    );
+    let state = TrainerState {
+        stage: Stage::Train,
+        counters: LoopState::default(),
+        model: model_cfg.clone(),
+        training_frames: exp.train_frames.len(),
+        joints: exp.prepared.skeleton.num_joints(),
+        novel_frames: None,
+        sampler: Some(sampler),
+        rng: ChaCha8Rng::seed_from_u64(stream_seed(seed, Stream::Stage1Host)),
+    };
+    let model = AnimatableNerf::new(model_cfg, exp.model_sizes(), device);
+    (model, state)
+}
+
+/// One stage-1 step's rays on the host: a random training frame and view, the sampled rays, their depth
+/// jitter, and the frame's inputs on each replica's device.
+struct RayStep {
+    frame: FrameId,
+    view: ViewId,
+    rays: HostRays,
+    /// `[R·S]` uniform numbers in `[0, 1)`, `S` per ray.
+    jitter: Vec<f32>,
+    inputs: Vec<FrameInputs>,
 }
 
 /// A stage-1 step: one ray batch of a random training frame and view, rendered and compared.
@@ -94,79 +138,11 @@ impl Step for Stage1<'_> {
     /// Colour MSE (plus the silhouette term) plus the blend-weight consistency (plus the residual
     /// penalty), as weighted by `[train]`.
     fn loss(&mut self, model: &AnimatableNerf) -> Result<(Tensor<1>, StepValues)> {
-        let (exp, cfg) = (&mut *self.exp, self.cfg);
-        let device = exp.device.clone();
-        let model_cfg = model.config();
-        let sampler = self
-            .state
-            .sampler
-            .as_mut()
-            .expect("stage 1 keeps a sampler");
-        let (frame, view) = sampler
-            .pick(&exp.train_frames, &exp.train_views)
-            .expect("frames and views exist");
-        let host = sampler
-            .sample_prepared(&exp.prepared, frame, view)
-            .with_context(|| format!("sampling rays of {frame}, {view}"))?;
-        let rays = RayBatch::new(&host, frame, view, &device);
-        let jitter = uniform(
-            &mut self.state.rng,
-            rays.len(),
-            model_cfg.samples_per_ray,
-            &device,
-        );
-        let inputs = exp.frame_inputs(frame)?;
-        let out = model.render(
-            &rays,
-            &inputs,
-            exp.canonical(),
-            Some(jitter),
-            model_cfg.neural_blend_weights,
-        );
-        let mse = color_mse(
-            out.rgb,
-            rays.colors.clone().expect("training rays carry colours"),
-        );
-        let colour_loss = match (&rays.foreground, cfg.mask_weight > 0.0) {
-            (Some(mask), true) => {
-                mse.clone() + silhouette_loss(out.acc.clone(), mask.clone()) * cfg.mask_weight
-            }
-            _ => mse.clone(),
-        };
-        let blend = out.consistency.map(|c| {
-            let consistency = c.loss(model_cfg.consistency);
-            if cfg.residual_weight > 0.0 {
-                consistency + c.residual_penalty() * cfg.residual_weight
-            } else {
-                consistency
-            }
-        });
-        let loss = match &blend {
-            Some(b) => colour_loss + b.clone(),
-            None => colour_loss,
-        };
-        // One transfer for the three logged values.
-        let values = to_host(Tensor::cat(
-            vec![
-                loss.clone(),
-                mse,
-                blend.unwrap_or_else(|| Tensor::zeros([1], &device)),
-            ],
-            0,
-        ));
-        let logged = StepValues {
-            loss: values[0],
-            mse: values[1],
-            blend: values[2],
-            surviving: out.surviving_samples as f32 / out.total_samples as f32,
-            occupied: out.occupied_samples as f32 / out.total_samples as f32,
-            items: rays.len(),
-        };
-        Ok((loss, logged))
+        whole_loss(self, model)
     }
 
-    fn after_step(&mut self, model: &mut AnimatableNerf, step: usize) {
-        model.update_occupancy(self.exp.canonical(), step);
+    fn after_step(&mut self, model: &mut AnimatableNerf, replica: usize, step: usize) {
+        model.update_occupancy(self.exp.canonical_on(replica), step);
     }
 
     /// Renders a held-out view of a middle training frame, saves it and returns its protocol PSNR.
@@ -220,31 +196,287 @@ impl Step for Stage1<'_> {
     }
 }
 
-/// `mean((acc − m)²)`: the rendered opacity `[R]` against the rays' foreground mask `[R]` (1 on the body).
-pub fn silhouette_loss(acc: Tensor<1>, foreground: Tensor<1>) -> Tensor<1> {
-    (acc - foreground).powf_scalar(2.0).mean()
+impl ShardedStep for Stage1<'_> {
+    type Batch = RayStep;
+
+    fn batch(&mut self, replicas: usize) -> Result<RayStep> {
+        let exp = &mut *self.exp;
+        let sampler = self
+            .state
+            .sampler
+            .as_mut()
+            .expect("stage 1 keeps a sampler");
+        let (frame, view) = sampler
+            .pick(&exp.train_frames, &exp.train_views)
+            .expect("frames and views exist");
+        let rays = sampler
+            .sample_prepared(&exp.prepared, frame, view)
+            .with_context(|| format!("sampling rays of {frame}, {view}"))?;
+        let samples = exp.config.model.samples_per_ray;
+        let rng = &mut self.state.rng;
+        let jitter = (0..rays.len() * samples)
+            .map(|_| rng.random::<f32>())
+            .collect();
+        let inputs = (0..replicas)
+            .map(|k| exp.frame_inputs_on(frame, k))
+            .collect::<Result<_>>()?;
+        Ok(RayStep {
+            frame,
+            view,
+            rays,
+            jitter,
+            inputs,
+        })
+    }
+
+    /// Each term is a mean over rays or samples: its sum on this shard over the count on every shard, so
+    /// that the shards' losses (times the shard count, as Burn averages their gradients) average to the
+    /// batch's.
+    fn shard_loss(
+        &self,
+        batch: &RayStep,
+        shard: &Shard<'_>,
+        model: &AnimatableNerf,
+    ) -> Result<(Tensor<1>, StepValues)> {
+        let cfg = self.cfg;
+        let model_cfg = model.config();
+        // The replica's device as the experiment holds it (with autodiff): the model's parameters report
+        // theirs without, and the renderer builds its outputs on the rays' device.
+        let device = self.exp.replica_device(shard.index);
+        let part = shard.part(batch.rays.len());
+        let samples = model_cfg.samples_per_ray;
+        let rays = RayBatch::new(
+            &batch.rays.slice(part.clone()),
+            batch.frame,
+            batch.view,
+            device,
+        );
+        let jitter = from_rows(
+            &batch.jitter[part.start * samples..part.end * samples],
+            part.len(),
+            samples,
+            device,
+        );
+        let out = model.render(
+            &rays,
+            &batch.inputs[shard.index],
+            self.exp.canonical_on(shard.index),
+            Some(jitter),
+            model_cfg.neural_blend_weights,
+        );
+        let colors = rays.colors.clone().expect("training rays carry colours");
+        let squared = squared_error_sum(out.rgb, colors);
+        let silhouette = match (&rays.foreground, cfg.mask_weight > 0.0) {
+            (Some(mask), true) => Some(squared_error_sum(out.acc.clone(), mask.clone())),
+            _ => None,
+        };
+        let consistency = out
+            .consistency
+            .as_ref()
+            .map(|c| c.loss_parts(model_cfg.consistency));
+        let residual = out
+            .consistency
+            .as_ref()
+            .and_then(|c| c.residual.clone())
+            .filter(|_| cfg.residual_weight > 0.0);
+        let joints = out.consistency.as_ref().map_or(1, |c| c.observed.dims()[1]);
+        let residual_entries = residual.as_ref().map_or(0, |r| r.dims().iter().product());
+
+        // The counts over every shard: rays, selected consistency samples, residual entries. One shard
+        // divides by its own (the selected count stays on the device). Several exchange their rays,
+        // positive-density samples and residual entries, and their greatest density: the consistency
+        // mask's guard adds the densest sample only where no sample is positive, which must be decided
+        // for the whole batch. A shard whose own selection the batch's does not hold contributes zero (its
+        // term kept, times zero, so that every replica's graph holds the same parameters, as the
+        // all-reduce needs).
+        let n = shard.count as f32;
+        let (rays_total, consistency, residual_total) = if shard.count == 1 {
+            let consistency = consistency.map(|c| (c.sum, c.selected));
+            (part.len() as f32, consistency, residual_entries as f32)
+        } else {
+            let (own_positive, own_densest) = match &out.consistency {
+                Some(c) => {
+                    let v = to_host(Tensor::cat(vec![c.positive.clone(), c.densest.clone()], 0));
+                    (v[0] as f64, v[1] as f64)
+                }
+                None => (0.0, f64::NEG_INFINITY),
+            };
+            let totals = shard.sum(
+                0,
+                &[part.len() as f64, own_positive, residual_entries as f64],
+            );
+            let densest = shard.max(1, own_densest);
+            // With no positive sample anywhere, the shards holding the batch's densest (one, but for ties).
+            let holds_densest = f64::from(u8::from(own_densest == densest));
+            let holders = shard.sum(2, &[holds_densest])[0];
+            let (weight, selected) = if totals[1] > 0.0 {
+                (f64::from(u8::from(own_positive > 0.0)), totals[1])
+            } else {
+                (holds_densest, holders)
+            };
+            let consistency = consistency.map(|c| {
+                let selected = Tensor::<1>::from_floats([selected as f32], device);
+                (c.sum * weight as f32, selected)
+            });
+            (totals[0] as f32, consistency, totals[2] as f32)
+        };
+        let mse = squared / (3.0 * rays_total) * n;
+        let colour_loss = match silhouette {
+            Some(s) => mse.clone() + s / rays_total * (cfg.mask_weight * n),
+            None => mse.clone(),
+        };
+        let blend = consistency.map(|(sum, selected)| {
+            let consistency = sum / (selected.clamp_min(1.0) * joints as f32) * n;
+            match &residual {
+                Some(f) => {
+                    consistency
+                        + f.clone().powf_scalar(2.0).sum() / residual_total
+                            * (cfg.residual_weight * n)
+                }
+                None => consistency,
+            }
+        });
+        let loss = match &blend {
+            Some(b) => colour_loss + b.clone(),
+            None => colour_loss,
+        };
+        // One transfer for the three logged values.
+        let values = to_host(Tensor::cat(
+            vec![
+                loss.clone(),
+                mse,
+                blend.unwrap_or_else(|| Tensor::zeros([1], device)),
+            ],
+            0,
+        ));
+        let logged = StepValues {
+            loss: values[0],
+            mse: values[1],
+            blend: values[2],
+            surviving: out.surviving_samples as f32 / out.total_samples as f32,
+            occupied: out.occupied_samples as f32 / out.total_samples as f32,
+            items: rays.len(),
+        };
+        Ok((loss, logged))
+    }
 }
 
-/// Uniform numbers in `[0, 1)` as an `[rows, cols]` tensor, from the trainer's own stream.
-fn uniform(rng: &mut ChaCha8Rng, rows: usize, cols: usize, device: &Device) -> Tensor<2> {
-    let values: Vec<f32> = (0..rows * cols).map(|_| rng.random::<f32>()).collect();
-    from_rows(&values, rows, cols, device)
+/// `Σ (a − b)²` over every entry: the numerator of the colour MSE (`[R, 3]` colours) and of the silhouette
+/// term (the rendered opacity `[R]` against the rays' foreground mask `[R]`, 1 on the body).
+fn squared_error_sum<const D: usize>(a: Tensor<D>, b: Tensor<D>) -> Tensor<1> {
+    (a - b).powf_scalar(2.0).sum()
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::config::{self, Settings};
+    use crate::training::parallel::run_shards;
     use anerf_core::device::cpu_device;
+    use anerf_core::model::ModelPreset;
+    use anerf_core::tensor::parameter_gradients;
+    use anerf_data::synthetic::{write_subject, SyntheticSpec};
+    use anerf_testing::{assert_close, Tolerance};
+    use burn::optim::GradientsParams;
+
+    /// The weighted losses of a batch split into shards average to the whole batch's loss, and their
+    /// gradients (as Burn's all-reduce averages them) to its gradients: every term (colour, silhouette,
+    /// consistency, residual penalty) is a mean over the batch, not over a shard. Both shards run here on
+    /// the same flex device, the average taken on the host.
+    #[test]
+    fn shards_of_a_batch_average_to_its_loss_and_gradients() {
+        let dir = tempfile::tempdir().unwrap();
+        let subject = dir.path().join("subject");
+        write_subject(&SyntheticSpec::tiny(), &subject).unwrap();
+        let settings = Settings {
+            root: Some(subject),
+            cache: Some(dir.path().join("cache")),
+            preset: Some(ModelPreset::Tiny),
+            train_views: Some(vec![0, 2]),
+            train_frames: Some("0:6".parse().unwrap()),
+            novel_pose_frames: Some("6:10".parse().unwrap()),
+            ..Settings::default()
+        };
+        let set = [
+            "train.batch=256",
+            "train.mask_weight=0.1",
+            "train.residual_weight=0.01",
+        ]
+        .map(String::from);
+        let config = config::assemble(config::demo_table(), &settings, &set).unwrap();
+        let device = cpu_device().autodiff();
+        let mut exp = Experiment::open(config, device.clone(), false)
+            .unwrap()
+            .with_data_parallel(vec![device.clone(); 3])
+            .unwrap();
+        let run = RunDir::create(&dir.path().join("run")).unwrap();
+        let cfg = exp.config.train.clone();
+        let (model, state) = fresh_start(&exp, &cfg);
+        let mut step = Stage1 {
+            record: Record::open(&run, Stage::Train, 0).unwrap(),
+            exp: &mut exp,
+            cfg: &cfg,
+            state,
+        };
+        let batch = step.batch(3).unwrap();
+        let split = |count: usize| {
+            let step = &step;
+            run_shards(count, |shard| {
+                let (loss, values) = step.shard_loss(&batch, &shard, &model).unwrap();
+                let grads = GradientsParams::from_grads(loss.backward(), &model);
+                let grads: Vec<f32> = parameter_gradients(&model, &grads)
+                    .into_iter()
+                    .flatten()
+                    .flatten()
+                    .collect();
+                (values, grads)
+            })
+        };
+        let whole = split(1).remove(0);
+        assert!(
+            whole.0.blend > 0.0 && whole.0.mse > 0.0,
+            "every term is present"
+        );
+        let shards = split(3);
+        let mean =
+            |f: &dyn Fn(&StepValues) -> f32| shards.iter().map(|(v, _)| f(v)).sum::<f32>() / 3.0;
+        let terms = [
+            ("loss", mean(&|v| v.loss), whole.0.loss),
+            ("colour MSE", mean(&|v| v.mse), whole.0.mse),
+            ("blend terms", mean(&|v| v.blend), whole.0.blend),
+        ];
+        for (what, got, expected) in terms {
+            eprintln!("{what}: shards {got}, whole {expected}");
+        }
+        for (what, got, expected) in terms {
+            assert!(
+                (got - expected).abs() <= 1e-5 * expected.abs(),
+                "{what}: shards {got}, whole batch {expected}"
+            );
+        }
+        assert_eq!(shards.iter().map(|(v, _)| v.items).sum::<usize>(), 256);
+        let averaged: Vec<f32> = (0..whole.1.len())
+            .map(|i| shards.iter().map(|(_, g)| g[i]).sum::<f32>() / 3.0)
+            .collect();
+        assert_eq!(shards[0].1.len(), whole.1.len(), "the same parameters");
+        assert_close(
+            "averaged shard gradients vs the whole batch's",
+            &averaged,
+            &whole.1,
+            Tolerance::Relative(1e-4),
+        );
+    }
 
     #[test]
-    fn the_silhouette_loss_is_the_mean_squared_opacity_error() {
+    fn the_squared_error_sum_adds_every_entrys_square() {
         let device = cpu_device();
         let acc = Tensor::<1>::from_floats([0.2, 0.9, 1.0, 0.0], &device);
         let mask = Tensor::<1>::from_floats([0.0, 1.0, 1.0, 1.0], &device);
-        let got = to_host(silhouette_loss(acc, mask))[0];
-        assert!(
-            (got - (0.04 + 0.01 + 0.0 + 1.0) / 4.0).abs() < 1e-7,
-            "{got}"
-        );
+        let got = to_host(squared_error_sum(acc, mask))[0];
+        assert!((got - (0.04 + 0.01 + 0.0 + 1.0)).abs() < 1e-6, "{got}");
+        let rgb = Tensor::<2>::from_floats([[0.5, 0.0, 1.0], [0.25, 0.25, 0.25]], &device);
+        let target = Tensor::<2>::from_floats([[0.0, 0.0, 0.0], [0.25, 0.75, 0.25]], &device);
+        let got = to_host(squared_error_sum(rgb, target))[0];
+        assert!((got - (0.25 + 1.0 + 0.25)).abs() < 1e-6, "{got}");
     }
 }

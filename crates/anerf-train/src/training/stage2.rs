@@ -14,7 +14,7 @@ use glam::Vec3;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
-use super::driver::{drive, LoopState, Record, RenderFigures, Step};
+use super::driver::{drive, LoopState, Record, RenderFigures, Single, Step};
 use super::seeds::{stream_seed, Stream};
 use super::window::{StepValues, WindowMeans};
 use super::{check_sizes, optimizer, resume_point, StageOutcome, TrainOptions};
@@ -88,7 +88,7 @@ pub fn train_stage2(
         cfg: &cfg,
         state,
     };
-    let (_, outcome) = drive(&mut step, model, optim, &cfg, options, stop)?;
+    let (_, outcome) = drive(&mut step, Single::new(model, optim), &cfg, options, stop)?;
     Ok(outcome)
 }
 
@@ -240,7 +240,7 @@ pub fn fit_pose_codes(
     };
     let never = AtomicBool::new(false);
     let optim = optimizer(cfg.grad_clip);
-    let (model, _) = drive(&mut step, model, optim, cfg, options, &never)?;
+    let (model, _) = drive(&mut step, Single::new(model, optim), cfg, options, &never)?;
     Ok(model.no_grad())
 }
 

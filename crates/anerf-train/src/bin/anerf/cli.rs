@@ -77,6 +77,7 @@ impl Common {
     pub fn options(&self) -> JobOptions {
         JobOptions {
             device: self.device,
+            devices: None,
             set: self.overrides.clone(),
             progress: !self.quiet,
         }

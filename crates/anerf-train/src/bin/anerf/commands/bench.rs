@@ -12,7 +12,6 @@ use std::time::Instant;
 use anerf_core::geometry::skinning::BoneMatrices;
 use anerf_core::geometry::BlendWeightVolume;
 use anerf_core::geometry::{Aabb, BoneTransforms, GlobalTransform};
-use anerf_core::model::animatable::consistency_mask;
 use anerf_core::model::{
     AnimatableNerf, CanonicalInputs, ConsistencyTerms, FrameCode, FrameInputs, ModelConfig,
     ModelPreset, ModelSizes,
@@ -380,12 +379,12 @@ impl StepWorkload {
             &self.frame,
             &self.canonical,
         );
-        let terms = ConsistencyTerms {
-            observed: shaded.weights.clone(),
-            canonical: model.canonical_weights(shaded.canonical_points.clone(), &self.canonical),
-            mask: consistency_mask(shaded.density.clone()),
-            residual: shaded.residual.clone(),
-        };
+        let terms = ConsistencyTerms::new(
+            shaded.weights.clone(),
+            model.canonical_weights(shaded.canonical_points.clone(), &self.canonical),
+            shaded.density.clone(),
+            shaded.residual.clone(),
+        );
         color_mse(shaded.rgb, self.target.clone())
             + terms.loss(model.config().consistency)
             + shaded.density.powi_scalar(2).mean() * 1e-4

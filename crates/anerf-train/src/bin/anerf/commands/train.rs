@@ -2,6 +2,7 @@
 
 use std::path::{Path, PathBuf};
 
+use anerf_core::device::DeviceSpec;
 use anerf_core::model::ModelPreset;
 use anerf_train::config::{self, ExperimentConfig, FrameRange, Settings};
 use anerf_train::jobs;
@@ -37,6 +38,10 @@ pub struct TrainArgs {
     /// Run folder (default runs/<name>).
     #[arg(long)]
     pub out: Option<PathBuf>,
+    /// Train data-parallel on these CUDA devices, e.g. cuda:0,cuda:1: each step's rays are split across
+    /// them and their gradients all-reduced by Burn (docs/GPU.md); one device runs the same code path.
+    #[arg(long, value_delimiter = ',', conflicts_with = "device")]
+    pub devices: Option<Vec<DeviceSpec>>,
     #[command(flatten)]
     pub start: StartArgs,
     #[command(flatten)]
@@ -86,10 +91,14 @@ pub fn run(args: &TrainArgs) -> Result<StageOutcome> {
         .out
         .clone()
         .unwrap_or_else(|| Path::new("runs").join(&config.name));
+    let options = jobs::JobOptions {
+        devices: args.devices.clone(),
+        ..args.common.options()
+    };
     let outcome = jobs::train(
         config,
         &run,
-        &args.common.options(),
+        &options,
         args.start.run_start(),
         args.start.steps,
         &interrupt_flag(),
@@ -153,5 +162,48 @@ mod tests {
         ]);
         let err = bad.unwrap_err().to_string();
         assert!(err.contains("--train-frames"), "{err}");
+    }
+
+    /// `--devices` takes a list of devices, conflicts with `--device`, and refuses non-CUDA devices before
+    /// anything is read or written.
+    #[test]
+    fn devices_take_a_cuda_list_and_conflict_with_device() {
+        let file = configs_dir().join("zju_mocap/313.toml");
+        let parse = |extra: &[&str]| {
+            let mut argv = vec!["anerf", "train", file.to_str().unwrap()];
+            argv.extend(extra);
+            Cli::try_parse_from(argv)
+        };
+        let Command::Train(args) = parse(&["--devices", "cuda:0,cuda:1"]).unwrap().command else {
+            panic!("parsed as another command")
+        };
+        let devices = args.devices.clone().unwrap();
+        assert_eq!(
+            devices.iter().map(ToString::to_string).collect::<Vec<_>>(),
+            ["cuda:0", "cuda:1"]
+        );
+        let both = parse(&["--devices", "cuda:0", "--device", "cuda"]).unwrap_err();
+        assert!(both.to_string().contains("--device"), "{both}");
+        let Command::Train(args) = parse(&["--devices", "flex,flex:1"]).unwrap().command else {
+            panic!("parsed as another command")
+        };
+        let out = std::env::temp_dir().join("anerf-devices-refused");
+        let err = jobs::train(
+            config(&args).unwrap(),
+            &out,
+            &jobs::JobOptions {
+                devices: args.devices.clone(),
+                ..args.common.options()
+            },
+            args.start.run_start(),
+            None,
+            &std::sync::atomic::AtomicBool::new(false),
+        )
+        .unwrap_err();
+        assert!(
+            format!("{err:#}").contains("only between CUDA devices"),
+            "{err:#}"
+        );
+        assert!(!out.exists(), "nothing was written");
     }
 }
