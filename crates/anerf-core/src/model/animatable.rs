@@ -88,11 +88,8 @@ pub struct ConsistencyTerms {
     pub canonical: Tensor<2>,
     /// `[M, 1]` 1 where the sample counts: raw density > 0 inside the canonical box, plus the densest sample.
     pub mask: Tensor<2>,
-    /// `[1]` samples with raw density > 0: the mask's count without its densest-sample guard (which adds
-    /// a sample only where none is positive).
-    pub positive: Tensor<1>,
-    /// `[1]` the greatest raw density (the densest sample's, which the guard selects).
-    pub densest: Tensor<1>,
+    /// `[M, 1]` the samples' raw density (detached), which the mask was made from.
+    pub density: Tensor<2>,
     /// `[M', K]` the frame field's residual `F` at the samples (neural field only), for its penalty.
     pub residual: Option<Tensor<2>>,
 }
@@ -106,14 +103,25 @@ impl ConsistencyTerms {
         density: Tensor<2>,
         residual: Option<Tensor<2>>,
     ) -> Self {
+        let density = density.detach();
         Self {
             observed,
             canonical,
-            positive: density.clone().detach().greater_elem(0.0).float().sum(),
-            densest: density.clone().detach().max(),
-            mask: consistency_mask(density),
+            mask: consistency_mask(density.clone()),
+            density,
             residual,
         }
+    }
+
+    /// `[1]` samples with raw density > 0: the mask's count without its densest-sample guard (which adds a
+    /// sample only where none is positive). Computed when asked, by the shards of a data-parallel step.
+    pub fn positive(&self) -> Tensor<1> {
+        self.density.clone().greater_elem(0.0).float().sum()
+    }
+
+    /// `[1]` the greatest raw density: the densest sample's, which the guard selects.
+    pub fn densest(&self) -> Tensor<1> {
+        self.density.clone().max()
     }
 
     /// `mean(F²)` of the residual (zero without the neural field): the penalty that keeps the learned
@@ -467,9 +475,7 @@ impl AnimatableNerf {
         frame: &FrameInputs,
     ) -> DeviceSurvivors {
         let [r, s] = depths.dims();
-        let world = rays.origins.clone().unsqueeze_dim::<3>(1)
-            + rays.directions.clone().unsqueeze_dim::<3>(1) * depths.unsqueeze_dim::<3>(2);
-        let pose = world_to_pose(world.reshape([r * s, 3]), &frame.global);
+        let pose = pose_samples(rays, depths, &frame.global);
         let distance = frame.volume.sample_distance(pose.clone()).reshape([r * s]);
         let near = distance
             .clone()
@@ -515,17 +521,25 @@ impl AnimatableNerf {
         let r = rays.len();
         let n = r * s;
         let depths = stratified_depths(rays.near.clone(), rays.far.clone(), s, jitter);
-        // The survivors' flat indices `[M]` on the device, and the rows among them that were shaded.
-        let (keep, (rows, shaded)) = if culls_on_device(&device) {
+        // The flat indices `[occupied]` of the shaded samples, the counts of survivors and of shaded
+        // samples, and their shading.
+        let (index, m, occupied, shaded) = if culls_on_device(&device) {
             let survivors = self.cull_on_device(rays, depths.clone(), frame);
-            let shaded = self.shade_points(
+            let (rows, shaded) = self.shade_points(
                 survivors.points,
                 survivors.prior,
                 survivors.directions,
                 frame,
                 canonical,
             );
-            (survivors.index, shaded)
+            let (m, occupied) = (survivors.index.dims()[0], rows.len());
+            let index = if occupied == m {
+                survivors.index
+            } else {
+                let rows = Tensor::<1, Int>::from_data(TensorData::new(rows, [occupied]), &device);
+                survivors.index.select(0, rows)
+            };
+            (index, m, occupied, shaded)
         } else {
             // Culling runs on the host: only the survivors' positions and directions are uploaded.
             let survivors = cull_samples(
@@ -539,21 +553,12 @@ impl AnimatableNerf {
                 &frame.volume,
                 self.config.cull_distance,
             );
-            let shaded =
+            let (rows, shaded) =
                 self.shade_survivors(&survivors.points, survivors.directions, frame, canonical);
-            let m = survivors.index.len();
-            let keep = Tensor::<1, Int>::from_data(TensorData::new(survivors.index, [m]), &device);
-            (keep, shaded)
-        };
-        let m = keep.dims()[0];
-        let occupied = rows.len();
-        let index = if occupied == m {
-            keep
-        } else {
-            keep.select(
-                0,
-                Tensor::<1, Int>::from_data(TensorData::new(rows, [occupied]), &device),
-            )
+            let occupied = rows.len();
+            let global: Vec<i64> = rows.iter().map(|&j| survivors.index[j as usize]).collect();
+            let index = Tensor::<1, Int>::from_data(TensorData::new(global, [occupied]), &device);
+            (index, survivors.index.len(), occupied, shaded)
         };
 
         let consistency = with_consistency.then(|| {
@@ -587,6 +592,19 @@ impl AnimatableNerf {
             total_samples: n,
         }
     }
+}
+
+/// The pose-space positions `[R·S, 3]` (metres, ray-major) of the samples along `rays` at `depths` (`[R, S]`,
+/// metres along each ray): `x_pose = R_hᵀ (o + z·d − T_h)`.
+pub(super) fn pose_samples(
+    rays: &RayBatch,
+    depths: Tensor<2>,
+    global: &GlobalTransform,
+) -> Tensor<2> {
+    let [r, s] = depths.dims();
+    let world = rays.origins.clone().unsqueeze_dim::<3>(1)
+        + rays.directions.clone().unsqueeze_dim::<3>(1) * depths.unsqueeze_dim::<3>(2);
+    world_to_pose(world.reshape([r * s, 3]), global)
 }
 
 /// Whether the render culls on the device: on the GPU backends, where reading the batch back and uploading

@@ -6,10 +6,10 @@ use burn::optim::GradientsParams;
 use burn::prelude::*;
 use glam::Vec3;
 
-use super::animatable::{cull_samples, SampleRays};
+use super::animatable::{cull_samples, pose_samples, SampleRays};
 use super::*;
 use crate::device::cpu_device;
-use crate::geometry::skinning::{points_tensor, world_to_pose, BoneMatrices};
+use crate::geometry::skinning::{points_tensor, BoneMatrices};
 use crate::geometry::BlendWeightVolume;
 use crate::geometry::{
     inverse_lbs_point, Aabb, Camera, CanonicalPose, GlobalTransform, Pose, Skeleton,
@@ -293,10 +293,7 @@ fn shade_every_sample(
     let samples = model.config().samples_per_ray;
     let r = s.rays.len();
     let depths = stratified_depths(s.rays.near.clone(), s.rays.far.clone(), samples, None);
-    let world = (s.rays.origins.clone().unsqueeze_dim::<3>(1)
-        + s.rays.directions.clone().unsqueeze_dim::<3>(1) * depths.clone().unsqueeze_dim::<3>(2))
-    .reshape([r * samples, 3]);
-    let pose = world_to_pose(world, &s.frame.global);
+    let pose = pose_samples(&s.rays, depths.clone(), &s.frame.global);
     let dirs = s
         .rays
         .directions

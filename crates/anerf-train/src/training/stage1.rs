@@ -296,7 +296,7 @@ impl ShardedStep for Stage1<'_> {
         } else {
             let (own_positive, own_densest) = match &out.consistency {
                 Some(c) => {
-                    let v = to_host(Tensor::cat(vec![c.positive.clone(), c.densest.clone()], 0));
+                    let v = to_host(Tensor::cat(vec![c.positive(), c.densest()], 0));
                     (v[0] as f64, v[1] as f64)
                 }
                 None => (0.0, f64::NEG_INFINITY),
