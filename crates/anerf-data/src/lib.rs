@@ -8,6 +8,7 @@ pub mod formats;
 pub mod info;
 pub mod loaders;
 pub mod motion;
+pub mod paths;
 pub mod prepare;
 pub mod sampler;
 pub mod smpl;

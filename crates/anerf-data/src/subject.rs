@@ -75,17 +75,22 @@ pub struct FittedPose {
 }
 
 impl PosedVertices {
-    /// The vertices, `expected` of them when the count is known; a file must hold finite `V × 3` values.
+    /// The vertices, `expected` of them when the count is known; a file must hold finite `V × 3` values,
+    /// and either source a body of a person's size ([`check_body_size`]).
     pub fn read(&self, expected: Option<usize>) -> Result<Vec<Vec3>, DataError> {
         match self {
             PosedVertices::File(path) => crate::loaders::read_posed_vertices(path, expected),
-            PosedVertices::Fitted(f) => Ok(f
-                .model
-                .pose(&f.params, true)
-                .vertices
-                .iter()
-                .map(|v| v.as_vec3())
-                .collect()),
+            PosedVertices::Fitted(f) => {
+                let vertices: Vec<Vec3> = f
+                    .model
+                    .pose(&f.params, true)
+                    .vertices
+                    .iter()
+                    .map(|v| v.as_vec3())
+                    .collect();
+                check_body_size(&vertices, &f.fit, "the body this fit poses (its shapes)")?;
+                Ok(vertices)
+            }
         }
     }
 
@@ -172,4 +177,48 @@ mod tests {
         assert!(err.contains("vertex 1"), "{err}");
         assert!(SkinningWeights::new(vec![0.5, 0.5, 1.0], 2).is_err());
     }
+}
+
+/// The extent a body (canonical or posed, metres) may have: the largest side of its bounding box.
+pub const BODY_SIZE_METRES: std::ops::RangeInclusive<f32> = 0.3..=3.0;
+
+/// Refuses vertices that are not a person's body in metres: none at all, a non-finite one, or a bounding
+/// box whose largest side is outside [`BODY_SIZE_METRES`], naming `path`, `what` and the unit the body is
+/// probably in. Volumes and boxes are sized from bodies, so this keeps a millimetre model or absurd
+/// shape coefficients from asking for petabytes.
+pub fn check_body_size(vertices: &[Vec3], path: &Path, what: &str) -> Result<(), DataError> {
+    let Some(bounds) = anerf_core::geometry::Aabb::from_points(vertices.iter().copied()) else {
+        return Err(DataError::invalid(path, format!("{what} has no vertex")));
+    };
+    let persons = format!(
+        "a person's body is between {} and {} m tall in metres",
+        BODY_SIZE_METRES.start(),
+        BODY_SIZE_METRES.end()
+    );
+    if let Some(v) = vertices.iter().position(|v| !v.is_finite()) {
+        return Err(DataError::invalid(
+            path,
+            format!(
+                "{what}: vertex {v} is {}, not finite; {persons}: are its shape coefficients (betas) \
+                 or scale far outside a person's?",
+                vertices[v]
+            ),
+        ));
+    }
+    let size = bounds.size().max_element();
+    if BODY_SIZE_METRES.contains(&size) {
+        return Ok(());
+    }
+    let unit = match size {
+        s if (300.0..=3000.0).contains(&s) => "; it is probably in millimetres",
+        s if (30.0..=300.0).contains(&s) => "; it is probably in centimetres",
+        s if s > 3.0 => "; are its shape coefficients (betas) or scale far outside a person's?",
+        _ => "",
+    };
+    Err(DataError::invalid(
+        path,
+        format!(
+            "{what} is {size:.4} m tall (the largest side of its bounding box); {persons}{unit}"
+        ),
+    ))
 }

@@ -16,6 +16,7 @@ use rayon::prelude::*;
 use crate::atomic::{self, WriteError};
 use crate::error::DataError;
 use crate::formats::{write_npy, write_object_npy, ArrayData, FormatWriteError, NdArray, PyValue};
+use crate::paths::{self, Overlap};
 use crate::subject::{PosedVertices, SkinningWeights, Subject};
 
 /// One frame's fitted parameters as `new_params/{i}.npy` holds them (axis-angle `poses` of the driven
@@ -164,8 +165,12 @@ pub fn write_points(path: &Path, points: &[Vec3]) -> Result<(), FormatWriteError
 pub enum LayoutError {
     #[error("{} already exists (pass --overwrite to replace it)", .0.display())]
     Exists(PathBuf),
-    #[error("the output folder {} lies inside the dataset {} it is written from", out.display(), root.display())]
+    #[error("the output folder {} lies inside the input {} it is written from", out.display(), root.display())]
     InsideSource { out: PathBuf, root: PathBuf },
+    #[error("the output folder {} holds the input {}: replacing it would delete that input; choose another --out", out.display(), input.display())]
+    HoldsSource { out: PathBuf, input: PathBuf },
+    #[error("{} exists and was not written by `anerf import` (it has no .anerf-import marker); refusing to delete it: choose another --out or remove it yourself", .0.display())]
+    NotOurs(PathBuf),
     #[error("frames {first} and {second} share the file index {index}: their files would collide")]
     SharedIndex {
         index: usize,
@@ -225,12 +230,26 @@ fn camera_folders(subject: &Subject) -> Vec<String> {
 /// `mask/<cam>/<index:06>.png`, `annots.npy`, `new_params/` (poses of the skeleton's joints, `Rh`, `Th`,
 /// and the fit's betas, or ten zeros), `new_vertices/` (posed with pose correctives for fitted bodies) and
 /// `lbs/` (with `bigpose_vertices.npy`). Everything is written into a sibling folder that is renamed to
-/// `out` at the end, so `out` is never half-written; an existing `out` is replaced only with `overwrite`.
-pub fn write_subject(subject: &Subject, out: &Path, overwrite: bool) -> Result<(), LayoutError> {
-    if out.exists() && !overwrite {
-        return Err(LayoutError::Exists(out.to_path_buf()));
+/// `out` at the end, so `out` is never half-written. `out` must neither lie inside nor hold the dataset
+/// folder or any of `inputs` (e.g. the body-model file); an existing `out` is replaced only with
+/// `overwrite`, and only when it holds the marker this function writes ([`IMPORT_MARKER`]).
+pub fn write_subject(
+    subject: &Subject,
+    out: &Path,
+    inputs: &[&Path],
+    overwrite: bool,
+) -> Result<(), LayoutError> {
+    for input in std::iter::once(subject.root.as_path()).chain(inputs.iter().copied()) {
+        check_apart(out, input)?;
     }
-    check_outside(out, &subject.root)?;
+    if out.exists() {
+        if !overwrite {
+            return Err(LayoutError::Exists(out.to_path_buf()));
+        }
+        if !paths::has_marker(out, IMPORT_MARKER) {
+            return Err(LayoutError::NotOurs(out.to_path_buf()));
+        }
+    }
     let mut seen = std::collections::HashMap::new();
     for (f, frame) in subject.frames.iter().enumerate() {
         if let Some(first) = seen.insert(frame.file_index, f) {
@@ -243,42 +262,27 @@ pub fn write_subject(subject: &Subject, out: &Path, overwrite: bool) -> Result<(
     }
     let staging = atomic::temp_dir_beside(out)?;
     write_into(subject, staging.path())?;
+    let marker = paths::marker(staging.path(), IMPORT_MARKER);
+    atomic::write_bytes(
+        &marker,
+        b"written by anerf import; --overwrite may replace this folder\n",
+    )?;
     Ok(atomic::replace_dir(staging, out)?)
 }
 
-/// Refuses an output folder at or under the dataset folder (it would be read while written, and `overwrite`
-/// could delete the source).
-fn check_outside(out: &Path, root: &Path) -> Result<(), LayoutError> {
-    let absolute = |p: &Path| {
-        std::path::absolute(p)
-            .map_err(io_error("resolve", p))
-            .map(|a| a.canonicalize().unwrap_or(a))
-    };
-    // The nearest existing ancestor of `out`, resolved through links, with the rest appended.
-    let mut existing = absolute(out)?;
-    let mut rest = Vec::new();
-    while !existing.exists() {
-        match (
-            existing.file_name().map(ToOwned::to_owned),
-            existing.parent(),
-        ) {
-            (Some(name), Some(parent)) => {
-                rest.push(name);
-                existing = parent.to_path_buf();
-            }
-            _ => break,
-        }
+/// The purpose [`paths::marker`] names in a folder [`write_subject`] made.
+pub const IMPORT_MARKER: &str = "import";
+
+/// Refuses an output folder at, under or above an input (it would be read while written, and `overwrite`
+/// could delete the input).
+fn check_apart(out: &Path, input: &Path) -> Result<(), LayoutError> {
+    let overlap = paths::overlap(out, input).map_err(io_error("resolve", out))?;
+    let (out, input) = (out.to_path_buf(), input.to_path_buf());
+    match overlap {
+        None => Ok(()),
+        Some(Overlap::Inside) => Err(LayoutError::InsideSource { out, root: input }),
+        Some(Overlap::Holds) => Err(LayoutError::HoldsSource { out, input }),
     }
-    let mut resolved = existing.canonicalize().unwrap_or(existing);
-    resolved.extend(rest.iter().rev());
-    let root = absolute(root)?;
-    if resolved.starts_with(&root) {
-        return Err(LayoutError::InsideSource {
-            out: out.to_path_buf(),
-            root,
-        });
-    }
-    Ok(())
 }
 
 fn write_into(subject: &Subject, dir: &Path) -> Result<(), LayoutError> {

@@ -10,7 +10,7 @@ use anerf_data::formats::opencv_yaml::FileStorage;
 use anerf_data::loaders::{detect_kind, load};
 use anerf_data::zju_layout::{write_subject, LayoutError};
 use anerf_data::{inspect, DatasetKind, InspectOptions, LoadOptions, Subject};
-use anerf_testing::{assert_close, fixture, floats, json, Tolerance};
+use anerf_testing::{assert_close, fixture, floats, json, tree_snapshot, Tolerance};
 use common::{array, f64s, flat, ordered, relative};
 use serde_json::json;
 
@@ -139,7 +139,11 @@ fn opencv_yaml_reads_as_cv2_reads_it() {
 /// What numpy must read from the imported folder `root`, stated from the capture it came from.
 fn import_manifest(capture: &Subject, imported: &Subject) -> serde_json::Value {
     let root = &imported.root;
-    let mut files = vec![common::annots_entry(imported)];
+    let mut files = vec![
+        common::annots_entry(imported),
+        // The marker that lets a later `import --overwrite` replace this folder.
+        json!({"path": ".anerf-import", "kind": "text", "starts_with": "written by anerf import"}),
+    ];
     let k = capture.body.skeleton.num_joints();
     for (frame, mine) in imported.frames.iter().zip(&capture.frames) {
         let i = frame.file_index;
@@ -207,7 +211,7 @@ fn an_imported_capture_reads_back_through_the_zju_loader_and_numpy_reads_every_f
     let ours = capture(&fixture("easymocap/capture"), &options()).unwrap();
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("imported");
-    write_subject(&ours, &out, false).unwrap();
+    write_subject(&ours, &out, &[], false).unwrap();
     let imported = anerf_data::load_zju_mocap(&out, &LoadOptions::default()).unwrap();
     assert_eq!(imported.frames.len(), ours.frames.len());
     assert_same_subject(&ours, &imported);
@@ -221,10 +225,10 @@ fn an_imported_capture_reads_back_through_the_zju_loader_and_numpy_reads_every_f
     assert_eq!(entries, ["imported"]);
 
     // An existing folder is kept unless overwriting is asked for; then it is replaced whole.
-    let err = write_subject(&ours, &out, false).unwrap_err();
+    let err = write_subject(&ours, &out, &[], false).unwrap_err();
     assert!(matches!(err, LayoutError::Exists(_)), "{err}");
     std::fs::write(out.join("stale.txt"), "old run").unwrap();
-    write_subject(&ours, &out, true).unwrap();
+    write_subject(&ours, &out, &[], true).unwrap();
     assert!(!out.join("stale.txt").exists());
     assert_same_subject(
         &ours,
@@ -238,7 +242,7 @@ fn an_import_that_fails_leaves_nothing_and_never_writes_into_the_capture() {
     let root = dir.path().join("capture");
     common::copy_tree(&fixture("easymocap/capture"), &root);
     let subject = capture(&root, &options()).unwrap();
-    let err = write_subject(&subject, &root.join("zju"), false).unwrap_err();
+    let err = write_subject(&subject, &root.join("zju"), &[], false).unwrap_err();
     assert!(matches!(err, LayoutError::InsideSource { .. }), "{err}");
     assert!(!root.join("zju").exists());
 
@@ -246,7 +250,7 @@ fn an_import_that_fails_leaves_nothing_and_never_writes_into_the_capture() {
     let lost = subject.frames[2].images[1].clone();
     std::fs::remove_file(&lost).unwrap();
     let out = dir.path().join("imported");
-    let err = write_subject(&subject, &out, false)
+    let err = write_subject(&subject, &out, &[], false)
         .unwrap_err()
         .to_string();
     assert!(err.contains(&lost.display().to_string()), "{err}");
@@ -255,6 +259,210 @@ fn an_import_that_fails_leaves_nothing_and_never_writes_into_the_capture() {
         .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
         .collect();
     assert_eq!(entries, ["capture"]);
+}
+
+/// `--overwrite` deletes only a folder `import` made (its marker), and never one that holds an input: the
+/// capture, or the body-model file beside it.
+#[test]
+fn overwrite_never_deletes_an_input_or_a_folder_import_did_not_make() {
+    let dir = tempfile::tempdir().unwrap();
+    let work = dir.path().join("work");
+    let root = work.join("capture");
+    common::copy_tree(&fixture("easymocap/capture"), &root);
+    let body_model = work.join("body.npz");
+    std::fs::write(&body_model, b"stands for the body model").unwrap();
+    let subject = capture(&root, &options()).unwrap();
+    let files_before = tree_snapshot(&work);
+
+    // The folder that holds the capture (and the body model beside it).
+    let err = write_subject(&subject, &work, &[&body_model], true).unwrap_err();
+    assert!(matches!(err, LayoutError::HoldsSource { .. }), "{err}");
+    assert!(err.to_string().contains("would delete"), "{err}");
+    // Through a link to it, and through `..`.
+    let link = dir.path().join("link");
+    std::os::unix::fs::symlink(&work, &link).unwrap();
+    let err = write_subject(&subject, &link, &[], true).unwrap_err();
+    assert!(matches!(err, LayoutError::HoldsSource { .. }), "{err}");
+    let err = write_subject(&subject, &root.join(".."), &[], true).unwrap_err();
+    assert!(matches!(err, LayoutError::HoldsSource { .. }), "{err}");
+    // A folder that holds only the body model.
+    let models = dir.path().join("models");
+    std::fs::create_dir(&models).unwrap();
+    let model_there = models.join("body.npz");
+    std::fs::write(&model_there, b"model").unwrap();
+    let err = write_subject(&subject, &models, &[&model_there], true).unwrap_err();
+    assert!(matches!(err, LayoutError::HoldsSource { .. }), "{err}");
+    assert!(model_there.is_file());
+    assert_eq!(tree_snapshot(&work), files_before);
+
+    // An unrelated folder that `import` did not write.
+    let mine = dir.path().join("mine");
+    std::fs::create_dir(&mine).unwrap();
+    std::fs::write(mine.join("notes.txt"), b"keep me").unwrap();
+    let err = write_subject(&subject, &mine, &[], true).unwrap_err();
+    assert!(matches!(err, LayoutError::NotOurs(_)), "{err}");
+    assert!(err.to_string().contains(".anerf-import"), "{err}");
+    assert_eq!(std::fs::read(mine.join("notes.txt")).unwrap(), b"keep me");
+
+    // One that it wrote is replaced.
+    let out = dir.path().join("imported");
+    write_subject(&subject, &out, &[], false).unwrap();
+    assert!(anerf_data::paths::has_marker(
+        &out,
+        anerf_data::zju_layout::IMPORT_MARKER
+    ));
+    write_subject(&subject, &out, &[], true).unwrap();
+    assert!(out.join("annots.npy").is_file());
+}
+
+/// Shape coefficients far outside a person's (100, 1e10, 1e300) make an absurd body: `inspect` names the
+/// fit file whichever frame holds them, and loading refuses the capture before anything is sized from the
+/// body (a volume around it would need petabytes).
+#[test]
+fn absurd_shapes_are_named_by_inspection_and_refused_by_loading() {
+    for (frame, value) in [("000000", 100.0), ("000002", 1e10), ("000001", 1e300)] {
+        let dir = tempfile::tempdir().unwrap();
+        let root = dir.path().join("capture");
+        common::copy_tree(&fixture("easymocap/capture"), &root);
+        let fit = root.join(format!("output-smpl-3d/smpl/{frame}.json"));
+        let mut people: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(&fit).unwrap()).unwrap();
+        for shape in people[0]["shapes"][0].as_array_mut().unwrap() {
+            *shape = json!(value);
+        }
+        std::fs::write(&fit, people.to_string()).unwrap();
+        let report = inspect(
+            &root,
+            &InspectOptions {
+                load: options(),
+                ..Default::default()
+            },
+        );
+        let text = report.to_string();
+        assert!(
+            report.problems.iter().any(|p| p.fatal
+                && p.path == fit
+                && p.message.contains("m tall")
+                && p.message.contains("between 0.3 and 3")),
+            "{frame} = {value}: {text}"
+        );
+        let loaded = capture(&root, &options()).and_then(|s| {
+            s.frames
+                .iter()
+                .try_for_each(|f| f.vertices.read(None).map(drop))
+        });
+        let err = loaded.unwrap_err().to_string();
+        assert!(
+            err.contains(&format!("{frame}.json")) && err.contains("m tall"),
+            "{err}"
+        );
+    }
+}
+
+/// Captures are checked as datasets are: a camera listed twice, a camera name that is a path, and
+/// calibration or fit files that are links out of the capture are named by `inspect` and refused.
+#[test]
+fn camera_names_and_links_out_of_the_capture_are_refused() {
+    let fresh = |dir: &Path| {
+        let root = dir.join("capture");
+        common::copy_tree(&fixture("easymocap/capture"), &root);
+        root
+    };
+    let fatal = |root: &Path| {
+        let report = inspect(
+            root,
+            &InspectOptions {
+                load: options(),
+                ..Default::default()
+            },
+        );
+        let problems: Vec<String> = report
+            .problems
+            .iter()
+            .filter(|p| p.fatal)
+            .map(|p| format!("{}: {}", p.path.display(), p.message))
+            .collect();
+        assert!(
+            capture(root, &options()).is_err(),
+            "loading accepted {}",
+            root.display()
+        );
+        problems.join("\n")
+    };
+    let rename = |root: &Path, from: &str, to: &str| {
+        let intri = root.join("intri.yml");
+        let text = std::fs::read_to_string(&intri).unwrap();
+        std::fs::write(&intri, text.replacen(from, to, 1)).unwrap();
+    };
+    for (listed, wanted) in [
+        ("\"01\"", "lists the camera '02' twice"),
+        ("\"/etc\"", "camera name \"/etc\" contains a path separator"),
+        ("\"..\"", "camera name \"..\" is '.' or '..'"),
+    ] {
+        let dir = tempfile::tempdir().unwrap();
+        let root = fresh(dir.path());
+        // The first name replaced: "02" listed twice, or a name that is a path.
+        let replacement = if listed == "\"01\"" { "\"02\"" } else { listed };
+        rename(&root, "\"01\"", replacement);
+        let text = fatal(&root);
+        assert!(
+            text.contains("intri.yml") && text.contains(wanted),
+            "{listed}: {text}"
+        );
+    }
+
+    // Calibration and fits that lead out of the capture through a link, each on its own.
+    for rel in ["intri.yml", "extri.yml", "output-smpl-3d/smpl/000001.json"] {
+        let dir = tempfile::tempdir().unwrap();
+        let root = fresh(dir.path());
+        let outside = dir.path().join("elsewhere");
+        std::fs::create_dir(&outside).unwrap();
+        let moved = outside.join(Path::new(rel).file_name().unwrap());
+        std::fs::rename(root.join(rel), &moved).unwrap();
+        std::os::unix::fs::symlink(&moved, root.join(rel)).unwrap();
+        let text = fatal(&root);
+        let name = Path::new(rel).file_name().unwrap().to_string_lossy();
+        assert!(
+            text.lines()
+                .any(|l| l.contains(name.as_ref()) && l.contains("outside the dataset folder")),
+            "{rel}: {text}"
+        );
+    }
+}
+
+/// A FIFO where an image should be is refused by name; reading it would block for ever.
+#[test]
+fn a_named_pipe_where_an_image_should_be_is_refused() {
+    let dir = tempfile::tempdir().unwrap();
+    let root = dir.path().join("capture");
+    common::copy_tree(&fixture("easymocap/capture"), &root);
+    let image = root.join("images/02/000001.jpg");
+    std::fs::remove_file(&image).unwrap();
+    let made = std::process::Command::new("mkfifo")
+        .arg(&image)
+        .status()
+        .unwrap();
+    assert!(made.success());
+    let (tx, rx) = std::sync::mpsc::channel();
+    let inspected = root.clone();
+    std::thread::spawn(move || {
+        let report = inspect(
+            &inspected,
+            &InspectOptions {
+                load: options(),
+                ..Default::default()
+            },
+        );
+        tx.send(report.to_string()).unwrap();
+    });
+    // A guard against hanging, not a timing: inspection of this capture takes well under a second.
+    let text = rx
+        .recv_timeout(std::time::Duration::from_secs(120))
+        .expect("inspection finished");
+    assert!(
+        text.contains("000001.jpg") && text.contains("named pipe"),
+        "{text}"
+    );
 }
 
 fn error_of(case: &str, options: &LoadOptions) -> String {

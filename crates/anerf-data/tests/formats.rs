@@ -127,9 +127,8 @@ fn body_model_archives_read_from_npz_and_pkl() {
     let weights = floats(&index["weights"]);
     let faces = floats(&index["faces_list"]);
     for file in ["tiny_body.npz", "tiny_body_compressed.npz"] {
-        let members = formats::npz::read_npz(&fixture(&format!("body_model/{file}")))
-            .unwrap()
-            .arrays;
+        let members =
+            formats::npz::read_npz_arrays(&fixture(&format!("body_model/{file}"))).unwrap();
         assert_close(&members["weights"].to_f64(), &weights, file);
         let f: Vec<f64> = members["f"]
             .to_i64()

@@ -273,3 +273,59 @@ fn a_pickle_of_one_byte_list_opcodes_stops_at_the_memory_cap() {
         );
     }
 }
+
+/// OpenCV YAML (calibration files), `.npz` archives (zip structure and members) and EasyMocap fit JSON, read
+/// as motions: mutated real files give errors, never panics, and allocate in proportion to the input (an
+/// `.npz` member may inflate to at most 1024× the archive: its budget).
+#[test]
+fn mutated_yaml_npz_and_fit_files_give_errors_not_panics_or_huge_allocations() {
+    use anerf_data::formats::opencv_yaml::FileStorage;
+    use anerf_data::motion::Motion;
+
+    let yaml = corpus(&["easymocap/capture", "easymocap/yaml"], |p| {
+        extension(p) == "yml"
+    });
+    assert!(yaml.len() >= 2, "{} YAML corpus files", yaml.len());
+    fuzz(
+        &yaml,
+        400,
+        0x0ca1_1b,
+        |input| FileStorage::parse(&String::from_utf8_lossy(input), Path::new("x.yml")).is_ok(),
+        |input| 64 * input.len() + (1 << 20),
+    );
+
+    let dir = tempfile::tempdir().unwrap();
+    let motions = corpus(&["motion", "easymocap/capture/output-smpl-3d/smpl"], |p| {
+        matches!(extension(p), "npz" | "json") && !p.to_string_lossy().contains("expected")
+    });
+    assert!(motions.len() >= 4, "{} motion corpus files", motions.len());
+    let as_file = |input: &[u8], ext: &str| {
+        let path = dir.path().join(format!("m.{ext}"));
+        std::fs::write(&path, input).unwrap();
+        path
+    };
+    let npz: Vec<_> = motions
+        .iter()
+        .filter(|(n, _)| n.ends_with(".npz"))
+        .cloned()
+        .collect();
+    let json: Vec<_> = motions
+        .iter()
+        .filter(|(n, _)| n.ends_with(".json"))
+        .cloned()
+        .collect();
+    fuzz(
+        &npz,
+        60,
+        0x00a2_c0de,
+        |input| Motion::read(&as_file(input, "npz"), None).is_ok(),
+        |input| 1100 * input.len() + (4 << 20),
+    );
+    fuzz(
+        &json,
+        60,
+        0x00f1_7501,
+        |input| Motion::read(&as_file(input, "json"), None).is_ok(),
+        |input| 64 * input.len() + (1 << 20),
+    );
+}

@@ -208,3 +208,45 @@ fn an_odd_first_image_is_blamed_not_the_cameras_other_images() {
     let err = anerf_data::load_zju_mocap(&root, &LoadOptions::default()).unwrap_err();
     assert_eq!(err.path(), odd, "{err}");
 }
+
+/// A body in millimetres or centimetres is named with its probable unit by `inspect`, and loading refuses
+/// it: volumes are sized from the body, so it must be a person's size in metres before anything else.
+#[test]
+fn a_body_in_millimetres_or_centimetres_is_named_with_its_unit() {
+    let dir = tempfile::tempdir().unwrap();
+    let root = dir.path().join("CoreView_377");
+    copy_tree(&fixture("zju_mocap/CoreView_377"), &root);
+    let scale = |rel: &str, by: f32| {
+        let path = root.join(rel);
+        let a = formats::read_npy(&path).unwrap();
+        let v: Vec<f32> = a.to_f64().iter().map(|&x| x as f32 * by).collect();
+        formats::write_npy(
+            &path,
+            &NdArray::new(a.shape().to_vec(), ArrayData::F32(v)).unwrap(),
+        )
+        .unwrap();
+    };
+    scale("lbs/tvertices.npy", 1000.0);
+    scale("vertices/2.npy", 100.0);
+    let r = inspect(&root, &InspectOptions::default());
+    let text = r.to_string();
+    for (file, unit) in [
+        ("lbs/tvertices.npy", "millimetres"),
+        ("vertices/2.npy", "centimetres"),
+    ] {
+        assert!(
+            r.problems.iter().any(|p| p.fatal
+                && p.path.ends_with(file)
+                && p.message.contains(unit)
+                && p.message.contains("between 0.3 and 3 m")),
+            "{file}: {text}"
+        );
+    }
+    let err = anerf_data::load_zju_mocap(&root, &LoadOptions::default())
+        .unwrap_err()
+        .to_string();
+    assert!(
+        err.contains("tvertices.npy") && err.contains("millimetres"),
+        "{err}"
+    );
+}

@@ -6,7 +6,7 @@
 use std::path::Path;
 
 use anerf_core::geometry::{Pose, Skeleton};
-use anerf_data::formats::npz::read_npz;
+use anerf_data::formats::npz::read_npz_arrays;
 use anerf_data::formats::read_npy;
 use anerf_data::motion::{
     retarget, FrameRange, Motion, MotionFormat, Placement, Scene, TargetBody,
@@ -66,9 +66,7 @@ fn flat(v: impl IntoIterator<Item = Vec3>) -> Vec<f32> {
 /// Checks retargeted poses against `<name>_expected.npz`: joints, Rh and Th within 1e-6, world vertices
 /// within 1e-5 m.
 fn check_against(name: &str, poses: &[Pose], body: &Body) {
-    let expected = read_npz(&fixture(&format!("motion/{name}_expected.npz")))
-        .unwrap()
-        .arrays;
+    let expected = read_npz_arrays(&fixture(&format!("motion/{name}_expected.npz"))).unwrap();
     let get = |key: &str| expected[key].to_f32();
     let exact = Tolerance::Absolute(1e-6);
     assert_close(

@@ -129,9 +129,7 @@ fn resizing_matches_opencv_area_and_nearest() {
 
 /// The body of the fixtures: canonical vertices, faces, weights.
 fn tiny_body() -> (Vec<Vec3>, Vec<[u32; 3]>, SkinningWeights) {
-    let m = formats::npz::read_npz(&fixture("body_model/tiny_body.npz"))
-        .unwrap()
-        .arrays;
+    let m = formats::npz::read_npz_arrays(&fixture("body_model/tiny_body.npz")).unwrap();
     let v: Vec<Vec3> = m["v_template"]
         .to_f32()
         .chunks(3)

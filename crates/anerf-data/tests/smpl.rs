@@ -86,15 +86,37 @@ fn the_correctives_move_the_body_so_the_comparison_can_tell_them_apart() {
 
 /// The arrays of fixture model `name`, to break one at a time.
 fn arrays(name: &str) -> BTreeMap<String, NdArray> {
-    anerf_data::formats::npz::read_npz(&fixture(&format!("smpl/{name}.npz")))
-        .unwrap()
-        .arrays
+    anerf_data::formats::npz::read_npz_arrays(&fixture(&format!("smpl/{name}.npz"))).unwrap()
 }
 
 fn error_of(arrays: &BTreeMap<String, NdArray>) -> String {
     SmplModel::from_arrays(arrays, Path::new("model.npz"))
         .unwrap_err()
         .to_string()
+}
+
+/// A model whose every array agrees on zero vertices is refused naming v_template (it used to panic
+/// regressing joints over chunks of zero vertices).
+#[test]
+fn a_consistent_model_with_zero_vertices_is_refused() {
+    let mut a = arrays("tree9");
+    let k = a["weights"].shape()[1];
+    let betas = a["shapedirs"].shape()[2];
+    let empty = |shape: Vec<usize>| NdArray::new(shape, ArrayData::F64(Vec::new())).unwrap();
+    a.insert("v_template".into(), empty(vec![0, 3]));
+    a.insert("weights".into(), empty(vec![0, k]));
+    a.insert("shapedirs".into(), empty(vec![0, 3, betas]));
+    a.insert("posedirs".into(), empty(vec![0, 3, 9 * (k - 1)]));
+    a.insert("J_regressor".into(), empty(vec![k, 0]));
+    a.insert(
+        "f".into(),
+        NdArray::new(vec![0, 3], ArrayData::I64(Vec::new())).unwrap(),
+    );
+    let err = error_of(&a);
+    assert!(
+        err.contains("model.npz") && err.contains("v_template has no vertex"),
+        "{err}"
+    );
 }
 
 #[test]

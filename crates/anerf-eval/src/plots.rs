@@ -67,8 +67,15 @@ fn draw_panels(panels: &[Panel]) -> Result<String, DrawingAreaErrorKind<std::io:
 type Area<'a> = DrawingArea<SVGBackend<'a>, plotters::coord::Shift>;
 type DrawResult = Result<(), DrawingAreaErrorKind<std::io::Error>>;
 
+/// Largest magnitude of a value drawn: a log's values beyond it (a diverged loss, a corrupt line) are left
+/// out, as non-finite ones are, so that every axis has a finite, resolvable range.
+pub const AXIS_LIMIT: f64 = 1e12;
+
 fn draw_panel(panel: &Panel, area: &Area) -> DrawResult {
-    let keep = |&(x, y): &(f64, f64)| x.is_finite() && y.is_finite() && (!panel.log_y || y > 0.0);
+    let drawable = |v: f64| v.is_finite() && v.abs() <= AXIS_LIMIT;
+    let keep = |&(x, y): &(f64, f64)| {
+        drawable(x) && drawable(y) && (!panel.log_y || y >= 1.0 / AXIS_LIMIT)
+    };
     let all: Vec<(f64, f64)> = panel
         .curves
         .iter()
@@ -249,5 +256,60 @@ fn plot_error<E: std::fmt::Display>(path: &Path) -> impl Fn(E) -> EvalError + '_
     move |e| EvalError::Format {
         path: path.to_path_buf(),
         detail: format!("drawing the figure: {e}"),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A log whose values reach the limits of f64 (and NaN, infinities, zeros on a log axis) is drawn:
+    /// the drawing finishes and shows the ordinary points. It used to loop forever building the axes.
+    #[test]
+    fn a_log_with_extreme_values_is_drawn() {
+        let (tx, rx) = std::sync::mpsc::channel();
+        std::thread::spawn(move || {
+            let extreme = vec![
+                (1.0, 0.5),
+                (2.0, f64::MAX),
+                (3.0, -f64::MAX),
+                (f64::MAX, 0.25),
+                (4.0, f64::NAN),
+                (5.0, f64::INFINITY),
+                (6.0, f64::MIN_POSITIVE),
+                (7.0, 0.0),
+                (8.0, 1e300),
+                (9.0, 0.125),
+            ];
+            let panels: Vec<Panel> = [false, true]
+                .into_iter()
+                .map(|log_y| Panel {
+                    title: "loss".into(),
+                    x_label: "step".into(),
+                    y_label: "loss".into(),
+                    log_y,
+                    curves: vec![Curve {
+                        name: "extreme".into(),
+                        points: extreme.clone(),
+                    }],
+                })
+                .collect();
+            tx.send(panels_svg(&panels).map_err(|e| e.to_string()))
+                .unwrap();
+        });
+        // Generous: the drawing takes milliseconds; a hang is what this guards against.
+        let svg = rx
+            .recv_timeout(std::time::Duration::from_secs(60))
+            .expect("drawing finished")
+            .unwrap();
+        assert!(
+            svg.starts_with("<svg") && svg.contains("polyline"),
+            "{}",
+            &svg[..200.min(svg.len())]
+        );
+        assert!(
+            !svg.contains("NaN") && !svg.contains("inf"),
+            "no non-finite coordinate"
+        );
     }
 }

@@ -35,10 +35,10 @@ pub struct Experiment {
 /// The frame positions of a range, every `interval`-th, cut to the frames that exist.
 fn frames_of(range: &crate::config::FrameRange, interval: usize, available: usize) -> Vec<FrameId> {
     range
+        .within(available)
         .frames()
         .into_iter()
         .step_by(interval.max(1))
-        .filter(|&f| f < available)
         .map(FrameId)
         .collect()
 }

@@ -1,6 +1,7 @@
 //! Motions on a trained run: a motion file read, resampled, cut and retargeted onto the run's subject
 //! (placed in its capture's world), and the stage-2 blend-weight field fitted for its frames, stored in
-//! `<run>/motions/<name>/` so that rendering it again does not refit.
+//! `<run>/motions/<name>-<key>/` (the key a digest of its joint rotations) so that rendering it again does
+//! not refit, and two motions of one name never replace each other's fit.
 
 use std::path::{Path, PathBuf};
 
@@ -9,12 +10,14 @@ use anerf_core::model::{AnimatableNerf, BlendWeightField, FrameCode, FrameInputs
 use anerf_core::{FrameId, ViewId};
 use anerf_data::atomic::{replace_dir, temp_dir_beside, write_bytes};
 use anerf_data::motion::{retarget, FrameRange, Motion, Placement, Scene};
+use anerf_data::paths::safe_component;
 use anerf_data::prepare::PosedBody;
 use anyhow::{bail, Context, Result};
 use burn::module::Module;
 use burn::prelude::Device;
 use glam::DVec3;
 use serde::{Deserialize, Serialize};
+use sha2::{Digest, Sha256};
 
 use crate::experiment::Experiment;
 use crate::training::{PoseTarget, PoseTargets};
@@ -69,11 +72,15 @@ impl MotionRequest {
         }
     }
 
-    /// The name its fit is stored under: the file's (or folder's) stem.
+    /// The clip's name: the file's (or folder's) stem made one safe path component
+    /// ([`safe_component`]: a stem of `..` or `.` becomes `motion`).
     pub fn name(&self) -> String {
-        self.path
+        let stem = self
+            .path
             .file_stem()
-            .map_or("motion".into(), |s| s.to_string_lossy().into_owned())
+            .map(|s| s.to_string_lossy().into_owned())
+            .unwrap_or_default();
+        safe_component(&stem, "motion")
     }
 }
 
@@ -244,7 +251,9 @@ fn frame_pose(exp: &Experiment, frame: FrameId) -> Result<Pose> {
         .clone())
 }
 
-/// `<run>/motions/<name>/`: the stage-2 field fitted for a clip, with the poses it was fitted for.
+/// `<run>/motions/<name>-<key>/`: the stage-2 field fitted for a clip, with the poses it was fitted for.
+/// The key is the first 48 bits of the SHA-256 of the clip's joint rotations, so the folder is the clip's
+/// whatever its file was called.
 #[derive(Debug, Clone)]
 pub struct StoredFit {
     pub dir: PathBuf,
@@ -265,9 +274,22 @@ const FIELD: &str = "field.bpk";
 const RECORD: &str = "fit.json";
 
 impl StoredFit {
-    pub fn new(motions: &Path, name: &str) -> Self {
+    pub fn new(motions: &Path, clip: &MotionClip) -> Self {
+        let mut digest = Sha256::new();
+        for pose in &clip.poses {
+            digest.update((pose.joint_rotations.len() as u64).to_le_bytes());
+            for r in &pose.joint_rotations {
+                for v in r.to_array() {
+                    digest.update(v.to_le_bytes());
+                }
+            }
+        }
+        let key: String = digest.finalize()[..6]
+            .iter()
+            .map(|b| format!("{b:02x}"))
+            .collect();
         Self {
-            dir: motions.join(name),
+            dir: motions.join(format!("{}-{key}", safe_component(&clip.name, "motion"))),
         }
     }
 

@@ -4,6 +4,7 @@
 use std::fs;
 use std::path::Path;
 
+use anerf_data::paths::{self, Overlap};
 use anyhow::{bail, Context, Result};
 
 use crate::checkpoint::Checkpoint;
@@ -34,8 +35,23 @@ impl RunStart {
     }
 }
 
-/// Checks that stage 1 may start in `root` as `start` asks. Touches nothing.
-pub fn check_stage1(root: &Path, start: RunStart) -> Result<()> {
+/// Checks that stage 1 may start in `root` as `start` asks, `inputs` being what the run reads (the dataset
+/// folder, the body model): `--overwrite` never deletes a folder that holds one of them. Touches nothing.
+pub fn check_stage1(root: &Path, start: RunStart, inputs: &[&Path]) -> Result<()> {
+    if start == RunStart::Overwrite {
+        for input in inputs {
+            let overlap = paths::overlap(root, input)
+                .with_context(|| format!("resolving {}", root.display()))?;
+            if overlap == Some(Overlap::Holds) {
+                bail!(
+                    "--overwrite: {} holds the input {}, which replacing the run would delete; choose \
+                     another --out",
+                    root.display(),
+                    input.display()
+                );
+            }
+        }
+    }
     let holds = contents(root)?;
     match start {
         RunStart::Fresh => {

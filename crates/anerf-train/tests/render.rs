@@ -172,7 +172,7 @@ fn render_motion_matches_the_novel_pose_evaluation_within_half_a_db() {
             "view {view}: {a:.2} dB vs eval's {b:.2} dB"
         );
     }
-    let field = run.join("motions/novel/field.bpk");
+    let field = stored_fits(&run, "novel")[0].join("field.bpk");
     let written = std::fs::metadata(&field).unwrap().modified().unwrap();
     let again = jobs::animate_motion(
         &run,
@@ -202,6 +202,70 @@ fn render_motion_matches_the_novel_pose_evaluation_within_half_a_db() {
             .unwrap()
             .reused
     );
+    // Both fits are kept, each under its own key: the first is still reused.
+    assert_eq!(stored_fits(&run, "novel").len(), 2);
+    assert!(
+        jobs::animate_motion(
+            &run,
+            &MotionRequest {
+                place: Place::Recorded,
+                ..MotionRequest::new(&motion)
+            },
+            None,
+            &quiet()
+        )
+        .unwrap()
+        .reused
+    );
+}
+
+/// The folders `<run>/motions/<stem>-<key>` a motion named `stem` is stored in.
+fn stored_fits(run: &Path, stem: &str) -> Vec<PathBuf> {
+    let prefix = format!("{stem}-");
+    pngs(&run.join("motions"))
+        .into_iter()
+        .filter(|p| {
+            p.file_name()
+                .unwrap()
+                .to_string_lossy()
+                .starts_with(&prefix)
+        })
+        .collect()
+}
+
+/// A motion file whose stem is `..` or `.` (a file named `...npz` or `..npz`) is stored inside
+/// `<run>/motions/`, never as the run itself or over every stored fit: the run is intact afterwards.
+#[test]
+fn a_motion_named_dot_dot_stays_inside_the_runs_motions_folder() {
+    let dir = tempfile::tempdir().unwrap();
+    let run = trained(
+        &tiny(dir.path(), &["train.iterations=2", "animate.iterations=2"]),
+        dir.path(),
+    );
+    let novel = amass_of_novel_frames(dir.path());
+    let motions = dir.path().join("motions");
+    std::fs::create_dir(&motions).unwrap();
+    let before = anerf_testing::tree_snapshot(&run);
+    for name in ["...npz", "..npz"] {
+        let path = motions.join(name);
+        std::fs::copy(&novel, &path).unwrap();
+        let request = MotionRequest {
+            place: Place::Recorded,
+            ..MotionRequest::new(&path)
+        };
+        let fitted = jobs::animate_motion(&run, &request, None, &quiet()).unwrap();
+        assert_eq!(
+            fitted.dir.parent(),
+            Some(run.join("motions").as_path()),
+            "{name}: {fitted:?}"
+        );
+        assert!(fitted.dir.join("fit.json").is_file(), "{name}");
+        let mut after = anerf_testing::tree_snapshot(&run);
+        after.retain(|path, _| !path.starts_with("motions"));
+        assert_eq!(after, before, "{name}: the run outside motions/ changed");
+    }
+    // Both files hold the same motion: one fit, the second reused it.
+    assert_eq!(stored_fits(&run, "motion").len(), 1);
 }
 
 /// The command line: `anerf animate --motion` stores the fit, `anerf render --motion` with a frame range and
@@ -226,7 +290,7 @@ fn the_motion_flags_of_animate_and_render() {
         out.status.success() && stderr.contains("fitted 3 frames"),
         "{stderr}"
     );
-    assert!(run.join("motions/novel/fit.json").is_file());
+    assert!(stored_fits(&run, "novel")[0].join("fit.json").is_file());
     let out = anerf()
         .arg("render")
         .arg(&run)

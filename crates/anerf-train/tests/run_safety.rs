@@ -137,6 +137,34 @@ fn an_existing_run_is_kept_unless_overwrite_is_asked_for() {
     );
 }
 
+/// A folder that looks like a run (it has a config.toml) but holds the dataset is never replaced, and a
+/// config named `..` is refused before it can name the current folder as the run.
+#[test]
+fn overwrite_never_deletes_the_dataset_and_a_dot_dot_name_is_refused() {
+    let dir = tempfile::tempdir().unwrap();
+    let config = tiny(dir.path(), &["train.iterations=2"]);
+    let work = dir.path();
+    std::fs::write(work.join("config.toml"), "name = 'looks like a run'").unwrap();
+    let before = anerf_testing::tree_snapshot(work);
+    let e = message(train(&config, work, RunStart::Overwrite).unwrap_err());
+    assert!(
+        e.contains("holds the input") && e.contains("subject"),
+        "{e}"
+    );
+    assert_eq!(anerf_testing::tree_snapshot(work), before);
+
+    for name in ["..", "."] {
+        let e = tiny_config(dir.path(), &[&format!("name=\"{name}\"")])
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("name") && e.contains("one folder name"),
+            "{name}: {e}"
+        );
+    }
+    assert_eq!(anerf_testing::tree_snapshot(work), before);
+}
+
 #[test]
 fn overwrite_refuses_a_folder_that_is_not_a_run_and_a_bad_start_keeps_the_old_run() {
     let dir = tempfile::tempdir().unwrap();
@@ -510,4 +538,36 @@ fn import_writes_a_zju_folder_once_and_replaces_it_only_when_asked() {
         .status
         .success());
     assert!(anerf_data::load_zju_mocap(&out, &anerf_data::LoadOptions::default()).is_ok());
+}
+
+/// Output to a closed pipe (`anerf info DIR | true`) ends `anerf` by SIGPIPE, as it ends Unix tools, with
+/// nothing on standard error: no panic about a broken pipe.
+#[test]
+fn output_to_a_closed_pipe_ends_quietly() {
+    use std::os::unix::process::ExitStatusExt;
+    use std::process::Stdio;
+    let dir = tempfile::tempdir().unwrap();
+    tiny(dir.path(), &[]);
+    let mut child = Command::new(env!("CARGO_BIN_EXE_anerf"))
+        .arg("info")
+        .arg(dir.path().join("subject"))
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    // The reader goes away before anything is written.
+    drop(child.stdout.take());
+    let out = child.wait_with_output().unwrap();
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        !stderr.contains("panicked") && !stderr.contains("Broken pipe"),
+        "{stderr}"
+    );
+    const SIGPIPE: i32 = 13;
+    assert_eq!(
+        out.status.signal(),
+        Some(SIGPIPE),
+        "{:?}: {stderr}",
+        out.status
+    );
 }

@@ -66,12 +66,13 @@ pub fn read_gray(path: &Path) -> Result<GrayImage, DataError> {
 
 /// Width and height from the file header alone: cheap, but blind to a file cut short after its header.
 pub fn image_size(path: &Path) -> Result<(u32, u32), DataError> {
-    if !path.is_file() {
-        return Err(DataError::Missing {
-            path: path.to_path_buf(),
+    super::check_regular(path).map_err(|e| match e {
+        DataError::Missing { path, .. } => DataError::Missing {
+            path,
             what: "an image file".into(),
-        });
-    }
+        },
+        other => other,
+    })?;
     image::image_dimensions(path).map_err(image_error(path))
 }
 

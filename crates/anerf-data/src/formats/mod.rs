@@ -21,9 +21,16 @@ pub use npy_write::write_npy;
 pub use pickle::Value;
 pub use pickle_write::{write_object_npy, PyValue};
 
-/// Reads a whole file, naming it in the error.
+/// Reads a whole regular file, naming it in the error. Anything else (a named pipe, a device, a socket, a
+/// folder) is refused before it is opened: reading a FIFO would block forever.
 pub fn read_bytes(path: &Path) -> Result<Vec<u8>, DataError> {
-    std::fs::read(path).map_err(|e| {
+    check_regular(path)?;
+    std::fs::read(path).map_err(|e| DataError::io(path, e))
+}
+
+/// Refuses a path that is not a regular file (after following links), naming what it is.
+pub fn check_regular(path: &Path) -> Result<(), DataError> {
+    let meta = std::fs::metadata(path).map_err(|e| {
         if e.kind() == std::io::ErrorKind::NotFound {
             DataError::Missing {
                 path: path.to_path_buf(),
@@ -32,7 +39,36 @@ pub fn read_bytes(path: &Path) -> Result<Vec<u8>, DataError> {
         } else {
             DataError::io(path, e)
         }
-    })
+    })?;
+    let kind = meta.file_type();
+    if kind.is_file() {
+        return Ok(());
+    }
+    #[cfg(unix)]
+    let what = {
+        use std::os::unix::fs::FileTypeExt;
+        if kind.is_fifo() {
+            "a named pipe (FIFO)"
+        } else if kind.is_socket() {
+            "a socket"
+        } else if kind.is_block_device() || kind.is_char_device() {
+            "a device"
+        } else if kind.is_dir() {
+            "a folder"
+        } else {
+            "not a regular file"
+        }
+    };
+    #[cfg(not(unix))]
+    let what = if kind.is_dir() {
+        "a folder"
+    } else {
+        "not a regular file"
+    };
+    Err(DataError::invalid(
+        path,
+        format!("is {what}; expected a regular file"),
+    ))
 }
 
 /// Reads a numeric `.npy` file.

@@ -377,15 +377,18 @@ pub enum Npy {
     Object(Value),
 }
 
-struct Header {
-    descr: Descr,
-    fortran: bool,
-    shape: Vec<usize>,
+/// A `.npy` header: the element type, whether the data is in Fortran order, and the shape.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Header {
+    pub descr: Descr,
+    pub fortran: bool,
+    pub shape: Vec<usize>,
 }
 
-/// The type of a `.npy` file's elements, from its header alone (the data is not read).
-pub fn peek_descr(bytes: &[u8]) -> Result<Descr, NpyError> {
-    Ok(split_header(bytes)?.0.descr)
+/// The header of a `.npy` file (element type, order, shape) from its first bytes alone (the data is not
+/// needed).
+pub fn peek_header(bytes: &[u8]) -> Result<Header, NpyError> {
+    Ok(split_header(bytes)?.0)
 }
 
 /// The parsed header of a `.npy` file and the data after it.

@@ -12,7 +12,7 @@ use super::check::Checker;
 use crate::error::DataError;
 use crate::formats::{self, NdArray};
 use crate::smpl;
-use crate::subject::{BodyModel, SkinningWeights};
+use crate::subject::{check_body_size, BodyModel, SkinningWeights};
 
 /// What could be read of a body model; each file is checked on its own, so one bad file hides no other.
 pub(crate) struct BodyParts {
@@ -44,8 +44,11 @@ pub(crate) fn read_body(
     let lbs = root.join("lbs");
     let skeleton = ck.check(read_skeleton(&lbs))?;
     let tpath = lbs.join("tvertices.npy");
-    let canonical_vertices =
-        ck.check(formats::read_npy(&tpath).and_then(|a| points(&a, &tpath, "tvertices")))?;
+    let canonical_vertices = ck.check(formats::read_npy(&tpath).and_then(|a| {
+        let v = points(&a, &tpath, "tvertices")?;
+        check_body_size(&v, &tpath, "the canonical body")?;
+        Ok(v)
+    }))?;
     let joints = skeleton.as_ref().map(Skeleton::num_joints);
     let vertices = canonical_vertices.as_ref().map(Vec::len);
     let (wpath, fpath) = (lbs.join("weights.npy"), lbs.join("faces.npy"));

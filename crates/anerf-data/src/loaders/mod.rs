@@ -25,7 +25,7 @@ use self::check::Checker;
 use self::image_files::{Inside, MaskRule};
 use crate::error::DataError;
 use crate::formats;
-use crate::subject::{DatasetKind, FrameRecord, PosedVertices, Subject};
+use crate::subject::{check_body_size, DatasetKind, FrameRecord, PosedVertices, Subject};
 
 /// What a loader needs besides the dataset folder.
 #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
@@ -295,7 +295,10 @@ pub(crate) fn read_posed_vertices(
                 v.len()
             ),
         )),
-        _ => Ok(v),
+        _ => {
+            check_body_size(&v, path, "the posed body")?;
+            Ok(v)
+        }
     }
 }
 

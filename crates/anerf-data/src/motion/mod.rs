@@ -108,10 +108,24 @@ impl Motion {
     /// The motion resampled from `from` to `to` frames per second: frame `i` at time `i / to`, joint
     /// rotations and the global rotation interpolated by slerp, translations linearly. Frames that fall
     /// on a recorded frame are copied exactly.
+    /// At most [`MAX_MOTION_FRAMES`] frames come out: the count is checked before any is made.
     pub fn resampled(&self, from: f64, to: f64) -> Result<Motion, DataError> {
+        check_rate(from, &self.source, "the frame rate")?;
         check_rate(to, &self.source, "the output frame rate (--fps)")?;
-        let last = (self.frames.len() - 1) as f64;
-        let count = (last * to / from + 1e-9).floor() as usize + 1;
+        let last = self.frames.len().saturating_sub(1) as f64;
+        let count = (last * to / from + 1e-9).floor() + 1.0;
+        if !(count <= MAX_MOTION_FRAMES as f64) {
+            return Err(DataError::invalid(
+                &self.source,
+                format!(
+                    "resampling its {} frames from {from} to {to} frames per second makes {count:.3e} \
+                     frames; at most {MAX_MOTION_FRAMES} are allowed (is its frame rate {from} right? \
+                     --motion-fps gives the rate of a file that records none)",
+                    self.frames.len()
+                ),
+            ));
+        }
+        let count = count as usize;
         let frames = (0..count)
             .map(|i| {
                 let t = i as f64 * from / to;
@@ -182,6 +196,9 @@ impl MotionFrame {
 }
 
 /// Refuses a rate that is not a positive finite number.
+/// Most frames a resampled motion may have (over nine hours at 30 frames per second).
+pub const MAX_MOTION_FRAMES: usize = 1_000_000;
+
 fn check_rate(rate: f64, source: &Path, what: &str) -> Result<(), DataError> {
     if rate.is_finite() && rate > 0.0 {
         Ok(())
@@ -310,6 +327,23 @@ mod tests {
                 "{err}"
             );
         }
+    }
+
+    /// AMASS's `mocap_framerate = 1e-6` resampled to 30 fps would make 9e7 frames (93.6 GB for a real
+    /// clip): refused, naming the file and the rates, before any frame is made; the bound itself passes.
+    #[test]
+    fn a_resampling_that_makes_too_many_frames_is_refused_first() {
+        let m = motion((0..313).map(|i| frame(0.0, i as f64)).collect());
+        let err = m.resampled(1e-6, 30.0).unwrap_err().to_string();
+        assert!(
+            err.contains("m.npz") && err.contains("0.000001") && err.contains("1000000"),
+            "{err}"
+        );
+        let two = motion(vec![frame(0.0, 0.0), frame(0.0, 1.0)]);
+        let most = two.resampled(1.0, (MAX_MOTION_FRAMES - 1) as f64).unwrap();
+        assert_eq!(most.frames.len(), MAX_MOTION_FRAMES);
+        assert!(two.resampled(1.0, MAX_MOTION_FRAMES as f64).is_err());
+        assert!(two.resampled(0.0, 30.0).is_err());
     }
 
     #[test]

@@ -7,7 +7,7 @@ use glam::DVec3;
 
 use super::{Motion, MotionFormat, MotionFrame, Root};
 use crate::error::DataError;
-use crate::formats::npz::{read_npz, Npz};
+use crate::formats::npz::{MemberKind, Npz};
 use crate::loaders::arrays::{finite, shape_text};
 use crate::loaders::easymocap::fits::read_fit_file;
 use crate::loaders::poses::{numbered_files, read_pose};
@@ -61,40 +61,40 @@ pub(super) fn read(path: &Path, person: Option<i64>) -> Result<Motion, DataError
 /// convention, `mocap_framerate` (SMPL+H) or `mocap_frame_rate` (SMPL-X); SMPL-X files' `root_orient`
 /// (T × 3) and `pose_body` (T × 63) take the place of the body part of `poses` where present.
 fn read_amass(path: &Path) -> Result<Motion, DataError> {
-    let npz = read_npz(path)?;
+    let mut npz = Npz::open(path)?;
+    let listed = listing(&npz);
     let layout = || {
         format!(
             "an AMASS motion has 'poses' (T × 156 for SMPL+H, 162 or 165 for SMPL-X, 72 for SMPL) or \
              'root_orient' + 'pose_body' (SMPL-X), 'trans' (T × 3) and 'mocap_framerate' or \
-             'mocap_frame_rate'; this file has {}",
-            listing(&npz)
+             'mocap_frame_rate'; this file has {listed}"
         )
     };
-    let has = |key: &str| npz.arrays.contains_key(key) || npz.others.contains_key(key);
-    let split = has("root_orient") && has("pose_body");
-    if !(has("trans") && (has("poses") || split)) {
+    let has = |npz: &Npz, key: &str| npz.kind(key).is_some();
+    let split = has(&npz, "root_orient") && has(&npz, "pose_body");
+    if !(has(&npz, "trans") && (has(&npz, "poses") || split)) {
         return Err(DataError::invalid(path, layout()));
     }
     let rate_key = ["mocap_framerate", "mocap_frame_rate"]
         .into_iter()
-        .find(|k| has(k))
+        .find(|k| has(&npz, k))
         .ok_or_else(|| DataError::invalid(path, format!("records no frame rate: {}", layout())))?;
-    let trans = numeric(&npz, path, "trans")?;
+    let trans = numeric(&mut npz, path, "trans")?;
     let t = trans.shape().first().copied().unwrap_or(0);
-    let trans = finite(trans, path, "trans", &[Some(t), Some(3)])?;
+    let trans = finite(&trans, path, "trans", &[Some(t), Some(3)])?;
     if t == 0 {
         return Err(DataError::invalid(path, "'trans' has no frames"));
     }
-    let rate = numeric(&npz, path, rate_key)?;
-    let rate = match finite(rate, path, rate_key, &vec![Some(1); rate.shape().len()])?[..] {
+    let rate = numeric(&mut npz, path, rate_key)?;
+    let rate = match finite(&rate, path, rate_key, &vec![Some(1); rate.shape().len()])?[..] {
         [r] => r,
         _ => unreachable!("a shape of ones holds one value"),
     };
     super::check_rate(rate, path, &format!("'{rate_key}'"))?;
-    let poses = if has("poses") {
-        let p = numeric(&npz, path, "poses")?;
+    let poses = if has(&npz, "poses") {
+        let p = numeric(&mut npz, path, "poses")?;
         let width = p.shape().get(1).copied().unwrap_or(0);
-        Some((finite(p, path, "poses", &[Some(t), Some(width)])?, width))
+        Some((finite(&p, path, "poses", &[Some(t), Some(width)])?, width))
     } else {
         None
     };
@@ -119,13 +119,13 @@ fn read_amass(path: &Path) -> Result<Motion, DataError> {
     };
     if split {
         let root = finite(
-            numeric(&npz, path, "root_orient")?,
+            &numeric(&mut npz, path, "root_orient")?,
             path,
             "root_orient",
             &[Some(t), Some(3)],
         )?;
         let body = finite(
-            numeric(&npz, path, "pose_body")?,
+            &numeric(&mut npz, path, "pose_body")?,
             path,
             "pose_body",
             &[Some(t), Some(63)],
@@ -154,29 +154,28 @@ fn read_amass(path: &Path) -> Result<Motion, DataError> {
 }
 
 /// A numeric member of an archive, or an error saying what it holds instead.
-fn numeric<'a>(
-    npz: &'a Npz,
-    path: &Path,
-    key: &str,
-) -> Result<&'a crate::formats::NdArray, DataError> {
-    npz.arrays.get(key).ok_or_else(|| {
-        let detail = match npz.others.get(key) {
-            Some(kind) => format!(
-                "'{key}' holds {kind}; expected a numeric array (object arrays are never unpickled)"
-            ),
-            None => format!("has no '{key}' ({})", listing(npz)),
-        };
-        DataError::invalid(path, detail)
-    })
+fn numeric(npz: &mut Npz, path: &Path, key: &str) -> Result<crate::formats::NdArray, DataError> {
+    match npz.kind(key) {
+        Some(MemberKind::Numeric { .. }) => npz.array(key),
+        Some(MemberKind::Other(kind)) => Err(DataError::invalid(
+            path,
+            format!("'{key}' holds {kind}; expected a numeric array (object arrays are never unpickled)"),
+        )),
+        None => Err(DataError::invalid(
+            path,
+            format!("has no '{key}' ({})", listing(npz)),
+        )),
+    }
 }
 
-/// The members of an archive with their shapes or kinds, for messages.
+/// The members of `npz` with their shapes or kinds, for error messages.
 fn listing(npz: &Npz) -> String {
     npz.names()
         .into_iter()
-        .map(|name| match npz.arrays.get(name) {
-            Some(a) => format!("{name} {}", shape_text(a.shape())),
-            None => format!("{name} ({})", npz.others[name]),
+        .map(|name| match npz.kind(name) {
+            Some(MemberKind::Numeric { shape, .. }) => format!("{name} {}", shape_text(shape)),
+            Some(MemberKind::Other(kind)) => format!("{name} ({kind})"),
+            None => name.to_string(),
         })
         .collect::<Vec<_>>()
         .join(", ")

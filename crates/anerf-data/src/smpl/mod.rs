@@ -63,6 +63,12 @@ impl SmplModel {
         };
         let template = finite(get("v_template")?, path, "v_template", &[None, Some(3)])?;
         let v = template.len() / 3;
+        if v == 0 {
+            return Err(DataError::invalid(
+                path,
+                "v_template has no vertex (expected V × 3 with V > 0)",
+            ));
+        }
         let weights_arr = get("weights")?;
         let weights = finite(weights_arr, path, "weights", &[Some(v), None])?;
         let k = weights_arr.shape()[1];
@@ -132,11 +138,33 @@ impl SmplModel {
     }
 }
 
+/// The arrays of an SMPL-family model file that [`SmplModel::from_arrays`] reads.
+pub const MODEL_KEYS: [&str; 7] = [
+    "v_template",
+    "shapedirs",
+    "posedirs",
+    "J_regressor",
+    "weights",
+    "kintree_table",
+    "f",
+];
+
 /// The named arrays of a body-model file: an `.npz`, or a `.pkl` dict read by the restricted unpickler
 /// (entries that are not arrays, such as `bs_style`, are left out).
 pub fn read_model_arrays(path: &Path) -> Result<BTreeMap<String, NdArray>, DataError> {
     match path.extension().and_then(|e| e.to_str()).unwrap_or("") {
-        "npz" => Ok(formats::npz::read_npz(path)?.arrays),
+        "npz" => {
+            // Only the arrays a model needs are inflated: other members (however large) cost nothing.
+            let mut npz = formats::npz::Npz::open(path)?;
+            let present: Vec<&str> = MODEL_KEYS
+                .into_iter()
+                .filter(|k| matches!(npz.kind(k), Some(formats::npz::MemberKind::Numeric { .. })))
+                .collect();
+            present
+                .into_iter()
+                .map(|k| Ok((k.to_string(), npz.array(k)?)))
+                .collect()
+        }
         "pkl" => match formats::read_pickle(path)? {
             Value::Dict(entries) => Ok(entries
                 .iter()

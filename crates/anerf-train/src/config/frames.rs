@@ -11,15 +11,31 @@ pub struct FrameRange {
     pub step: usize,
 }
 
+/// Most frames one range may hold (about nine hours at 30 frames per second, more than any capture has):
+/// config validation refuses longer ranges before any list of them is made.
+pub const MAX_RANGE_FRAMES: usize = 1_000_000;
+
 impl FrameRange {
-    /// The frame indices.
+    /// The frame indices (callers check [`FrameRange::len`] against [`MAX_RANGE_FRAMES`] or cut the range
+    /// to a dataset with [`FrameRange::within`] first).
     pub fn frames(&self) -> Vec<usize> {
         (self.start..self.end).step_by(self.step.max(1)).collect()
     }
 
-    /// Number of frames.
+    /// Number of frames, computed without listing them.
     pub fn len(&self) -> usize {
-        self.frames().len()
+        self.end
+            .saturating_sub(self.start)
+            .div_ceil(self.step.max(1))
+    }
+
+    /// The range cut to the `available` frames of a dataset.
+    pub fn within(&self, available: usize) -> FrameRange {
+        FrameRange {
+            end: self.end.min(available).max(self.start.min(available)),
+            start: self.start.min(available),
+            ..*self
+        }
     }
 
     /// True when the range holds no frame.

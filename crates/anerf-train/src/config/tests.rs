@@ -1,5 +1,6 @@
 use anerf_core::model::ModelPreset;
 
+use super::frames::MAX_RANGE_FRAMES;
 use super::presets::{mask_note, plateau_note};
 use super::*;
 
@@ -170,6 +171,62 @@ fn base_cycles_are_reported() {
     write(dir.path(), "a.toml", "base = \"b.toml\"");
     let b = write(dir.path(), "b.toml", "base = \"a.toml\"");
     assert!(matches!(load(&b, &[]), Err(ConfigError::BaseCycle { .. })));
+}
+
+/// A range too long to list is refused by validation, naming the key and the bound, before anything lists
+/// its frames (the list of `0:100000000000000` would need 800 TB).
+#[test]
+fn a_frame_range_too_long_to_list_is_refused_naming_the_key() {
+    let dir = tempfile::tempdir().unwrap();
+    let p = write(dir.path(), "s.toml", SUBJECT);
+    for range in ["0:100000000000000", "0:18446744073709551615", "5:1000006"] {
+        let err = load(&p, &[format!("dataset.iccv.train_frames={range:?}")])
+            .unwrap_err()
+            .to_string();
+        assert!(
+            err.contains("dataset.iccv.train_frames")
+                && err.contains(range)
+                && err.contains(&MAX_RANGE_FRAMES.to_string()),
+            "{err}"
+        );
+    }
+    let c = load(
+        &p,
+        &[
+            "dataset.iccv.train_frames=\"0:1000000\"".into(),
+            "dataset.iccv.novel_pose_frames=\"1000000:1000010\"".into(),
+        ],
+    )
+    .unwrap();
+    assert_eq!(c.dataset.split().train_frames.len(), MAX_RANGE_FRAMES);
+}
+
+/// `len` counts what `frames` lists, and `within` cuts to a dataset without listing.
+#[test]
+fn frame_range_len_and_within_agree_with_the_listed_frames() {
+    for start in 0..7 {
+        for end in start..20 {
+            for step in 1..5 {
+                let r = FrameRange { start, end, step };
+                assert_eq!(r.len(), r.frames().len(), "{r}");
+                for available in 0..22 {
+                    let listed: Vec<usize> =
+                        r.frames().into_iter().filter(|&f| f < available).collect();
+                    assert_eq!(
+                        r.within(available).frames(),
+                        listed,
+                        "{r} within {available}"
+                    );
+                }
+            }
+        }
+    }
+    let huge = FrameRange {
+        start: 3,
+        end: usize::MAX,
+        step: 2,
+    };
+    assert_eq!(huge.within(10).frames(), vec![3, 5, 7, 9]);
 }
 
 #[test]

@@ -1,5 +1,6 @@
 //! The checks of a resolved config that serde cannot make.
 
+use super::frames::MAX_RANGE_FRAMES;
 use super::{ConfigError, ExperimentConfig, RangeSet};
 
 /// Checks values serde cannot: ranges, sizes and positivity. Errors name the key.
@@ -24,6 +25,21 @@ pub fn validate(c: &ExperimentConfig) -> Result<(), ConfigError> {
         ("dataset.tpami", d.tpami.as_ref()),
     ] {
         if let Some(s) = split {
+            for (key, range) in [
+                ("train_frames", &s.train_frames),
+                ("novel_pose_frames", &s.novel_pose_frames),
+            ] {
+                if range.len() > MAX_RANGE_FRAMES {
+                    return bad(
+                        &format!("{name}.{key}"),
+                        format!(
+                            "{range} holds {} frames; a range may hold at most {MAX_RANGE_FRAMES} (frames \
+                             past the dataset's last are cut when it is loaded)",
+                            range.len()
+                        ),
+                    );
+                }
+            }
             if s.train_frames.is_empty() {
                 return bad(
                     &format!("{name}.train_frames"),
@@ -115,10 +131,13 @@ pub fn validate(c: &ExperimentConfig) -> Result<(), ConfigError> {
             format!("{} (expected 0 ≤ termination < 1)", c.eval.termination),
         );
     }
-    if c.name.is_empty() || c.name.contains(['/', '\\']) {
+    if let Err(why) = anerf_data::paths::check_component(&c.name) {
         return bad(
             "name",
-            format!("'{}' (expected a non-empty name without slashes)", c.name),
+            format!(
+                "'{}' {why} (expected one folder name: the run goes to runs/<name>)",
+                c.name
+            ),
         );
     }
     Ok(())

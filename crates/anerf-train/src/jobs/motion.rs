@@ -22,7 +22,7 @@ use crate::training::fit_pose_codes;
 /// What `anerf animate --motion` did.
 #[derive(Debug, Clone)]
 pub struct FittedMotion {
-    /// `<run>/motions/<name>/`.
+    /// `<run>/motions/<name>-<key>/`.
     pub dir: PathBuf,
     pub frames: usize,
     /// True when a stored fit of the same poses was found and nothing was fitted.
@@ -58,7 +58,7 @@ fn fit_clip(
     checkpoint: &str,
     options: &JobOptions,
 ) -> Result<FittedMotion> {
-    let stored = StoredFit::new(&run.motions(), &clip.name);
+    let stored = StoredFit::new(&run.motions(), &clip);
     let fitted = |reused, seconds| FittedMotion {
         dir: stored.dir.clone(),
         frames: clip.poses.len(),
@@ -120,7 +120,7 @@ pub(super) fn render_motion(
         MotionCamera::Orbit => exp.train_views[0],
     };
     let clip = MotionClip::new(request, &exp, view)?;
-    let stored = StoredFit::new(&run.motions(), &clip.name);
+    let stored = StoredFit::new(&run.motions(), &clip);
     let (model, fit) = match stored.load(&clip, &checkpoint, model.clone(), &device)? {
         Some(m) => (
             m,

@@ -32,7 +32,12 @@ pub fn train(
         .as_deref()
         .map(|specs| data_parallel_devices(specs, options))
         .transpose()?;
-    run_start::check_stage1(run, start)?;
+    config.dataset.make_paths_absolute()?;
+    let dataset = &config.dataset;
+    let inputs: Vec<&Path> = std::iter::once(dataset.root.as_path())
+        .chain(dataset.body_model.as_deref())
+        .collect();
+    run_start::check_stage1(run, start, &inputs)?;
     if start == RunStart::Resume {
         let existing = RunDir::open(run)?;
         if existing.read_config()?.model != config.model {
@@ -42,7 +47,6 @@ pub fn train(
             );
         }
     }
-    config.dataset.make_paths_absolute()?;
     memory::check(&config, Work::Train)?;
     let mut exp = match parallel {
         None => {

@@ -13,6 +13,7 @@ use anyhow::{Context, Result};
 use percent_encoding::{AsciiSet, NON_ALPHANUMERIC};
 use serde::Serialize;
 
+use super::routes::{inside_run, Outside};
 use crate::plots::{has_stage, read_log};
 use crate::run_dir::RunDir;
 
@@ -82,15 +83,18 @@ impl RunIndex {
     pub fn read(run: &RunDir) -> Result<Self> {
         let mut stamps = Stamps::default();
         let config_path = run.config_path();
-        let config = std::fs::read_to_string(&config_path)
-            .with_context(|| format!("reading {}", config_path.display()))?;
+        let config = inside_run(run, &config_path)
+            .map_err(|why| anyhow::anyhow!("{} {why}", config_path.display()))
+            .and_then(|p| {
+                std::fs::read_to_string(&p).with_context(|| format!("reading {}", p.display()))
+            })?;
         stamps.add(&config_path);
         let log = run.metrics_log();
         stamps.add(&log);
-        let lines = if log.is_file() {
-            read_log(run)?
-        } else {
-            Vec::new()
+        let lines = match inside_run(run, &log) {
+            Ok(_) => read_log(run)?,
+            Err(Outside::Missing) => Vec::new(),
+            Err(why) => anyhow::bail!("{} {why}", log.display()),
         };
         let log_stamp = Stamps::of(&log);
         let curves = [1u64, 2]
@@ -108,7 +112,7 @@ impl RunIndex {
             .and_then(|t| t.get("name")?.as_str().map(str::to_string))
             .unwrap_or_else(|| file_stem(&run.root));
         let evaluations = evaluations(run, &mut stamps)?;
-        let videos = files_with(&run.renders(), &["gif", "mp4"], &mut stamps)
+        let videos = files_with(run, &run.renders(), &["gif", "mp4"], &mut stamps)
             .into_iter()
             .map(|p| Video {
                 name: file_stem(&p),
@@ -116,7 +120,7 @@ impl RunIndex {
                 url: file_url(run, &p),
             })
             .collect();
-        let avatars = files_with(&run.exports(), &["glb"], &mut stamps)
+        let avatars = files_with(run, &run.exports(), &["glb"], &mut stamps)
             .iter()
             .map(|p| file_url(run, p))
             .collect();
@@ -140,13 +144,15 @@ fn evaluations(run: &RunDir, stamps: &mut Stamps) -> Result<Vec<Evaluation>> {
     for split in EvalSplit::ALL {
         let dir = run.eval().join(split.name());
         let records_path = dir.join("metrics.json");
-        if !records_path.is_file() {
+        let Ok(records_file) = inside_run(run, &records_path) else {
             continue;
-        }
+        };
         stamps.add(&records_path);
-        let records = read_records_json(&records_path)?;
-        let summary = read_summary_json(&dir.join("summary.json")).ok();
-        let url_if_file = |p: PathBuf| p.is_file().then(|| file_url(run, &p));
+        let records = read_records_json(&records_file)?;
+        let summary = inside_run(run, &dir.join("summary.json"))
+            .ok()
+            .and_then(|p| read_summary_json(&p).ok());
+        let url_if_file = |p: PathBuf| inside_run(run, &p).is_ok().then(|| file_url(run, &p));
         let images = records
             .iter()
             .map(|r| {
@@ -177,14 +183,14 @@ fn evaluations(run: &RunDir, stamps: &mut Stamps) -> Result<Vec<Evaluation>> {
     Ok(out)
 }
 
-/// The files of `dir` (not recursive) whose extension is one of `extensions`, sorted by name.
-fn files_with(dir: &Path, extensions: &[&str], stamps: &mut Stamps) -> Vec<PathBuf> {
+/// The regular files of `dir` inside the run (not recursive) whose extension is one of `extensions`, sorted by name.
+fn files_with(run: &RunDir, dir: &Path, extensions: &[&str], stamps: &mut Stamps) -> Vec<PathBuf> {
     let Ok(entries) = std::fs::read_dir(dir) else {
         return Vec::new();
     };
     let mut files: Vec<PathBuf> = entries
         .filter_map(|e| e.ok().map(|e| e.path()))
-        .filter(|p| p.is_file())
+        .filter(|p| inside_run(run, p).is_ok())
         .filter(|p| {
             p.extension()
                 .is_some_and(|e| extensions.iter().any(|x| e.eq_ignore_ascii_case(x)))

@@ -4,11 +4,12 @@
 //! while the run trains. The server only reads: nothing outside the run folder is served ([`routes`]).
 
 pub mod assets;
+pub mod http;
 pub mod index;
 pub mod routes;
 
 use std::io;
-use std::net::{Ipv4Addr, SocketAddr, TcpListener};
+use std::net::{Ipv4Addr, SocketAddr, TcpListener, TcpStream};
 use std::path::Path;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Duration;
@@ -16,18 +17,19 @@ use std::time::Duration;
 use anyhow::{Context, Result};
 
 use crate::run_dir::RunDir;
-use routes::{route, Body};
+use http::{read_request, write_reply};
+use routes::{route, Body, Reply};
 
 /// Requests answered at once (a video download does not hold up the page's polling).
 const WORKERS: usize = 4;
 
 /// How often a worker checks the stop flag while no request comes.
-const POLL: Duration = Duration::from_millis(200);
+const POLL: Duration = Duration::from_millis(50);
 
 /// A bound, not yet serving, viewer of one run.
 pub struct Viewer {
     run: RunDir,
-    server: tiny_http::Server,
+    listener: TcpListener,
     addr: SocketAddr,
 }
 
@@ -44,9 +46,15 @@ impl Viewer {
             _ => anyhow::Error::new(e).context(format!("listening on 127.0.0.1:{port}")),
         })?;
         let addr = listener.local_addr().context("reading the bound address")?;
-        let server = tiny_http::Server::from_listener(listener, None)
-            .map_err(|e| anyhow::anyhow!("starting the server on {addr}: {e}"))?;
-        Ok(Self { run, server, addr })
+        // Workers poll, so that they see the stop flag.
+        listener
+            .set_nonblocking(true)
+            .context("setting up the listening socket")?;
+        Ok(Self {
+            run,
+            listener,
+            addr,
+        })
     }
 
     /// The page's address.
@@ -54,16 +62,21 @@ impl Viewer {
         format!("http://{}/", self.addr)
     }
 
-    /// Answers requests until `stop` is set.
+    /// Answers requests until `stop` is set, each connection on one of [`WORKERS`] threads.
     pub fn serve(&self, stop: &AtomicBool) {
         std::thread::scope(|scope| {
             for _ in 0..WORKERS {
                 scope.spawn(|| {
                     while !stop.load(Ordering::Relaxed) {
-                        match self.server.recv_timeout(POLL) {
-                            Ok(Some(request)) => self.answer(request),
-                            Ok(None) => {}
-                            Err(e) => eprintln!("warning: view: reading a request: {e}"),
+                        match self.listener.accept() {
+                            Ok((stream, _)) => self.answer(stream),
+                            Err(e) if e.kind() == io::ErrorKind::WouldBlock => {
+                                std::thread::sleep(POLL)
+                            }
+                            Err(e) => {
+                                eprintln!("warning: view: accepting a connection: {e}");
+                                std::thread::sleep(POLL);
+                            }
                         }
                     }
                 });
@@ -71,11 +84,18 @@ impl Viewer {
         });
     }
 
-    fn answer(&self, request: tiny_http::Request) {
-        let reply = route(&self.run, request.method().as_str(), request.url());
-        let header = |name: &str, value: &str| {
-            tiny_http::Header::from_bytes(name.as_bytes(), value.as_bytes())
-                .expect("static header names and values are valid")
+    /// Reads one request from `stream`, answers it and closes the connection.
+    fn answer(&self, stream: TcpStream) {
+        if let Err(e) = http::limit_time(&stream) {
+            eprintln!("warning: view: setting up a connection: {e}");
+            return;
+        }
+        let (reply, head_only) = match read_request(&stream) {
+            Ok(request) => (
+                route(&self.run, &request.method, &request.target),
+                request.method == "HEAD",
+            ),
+            Err(refusal) => (Reply::text(refusal.status, refusal.message), false),
         };
         let cache = if reply.cacheable {
             "max-age=3600"
@@ -83,43 +103,45 @@ impl Viewer {
             "no-cache"
         };
         let headers = [
-            header("Content-Type", reply.content_type),
-            header("Cache-Control", cache),
-            header("X-Content-Type-Options", "nosniff"),
+            ("Content-Type", reply.content_type),
+            ("Cache-Control", cache),
+            ("X-Content-Type-Options", "nosniff"),
         ];
-        let status = tiny_http::StatusCode(reply.status);
         let sent = match reply.body {
-            Body::Static(bytes) => request.respond(with_headers(
-                tiny_http::Response::from_data(bytes),
-                status,
-                headers,
-            )),
-            Body::Owned(bytes) => request.respond(with_headers(
-                tiny_http::Response::from_data(bytes),
-                status,
-                headers,
-            )),
-            Body::File(file) => request.respond(with_headers(
-                tiny_http::Response::from_file(file),
-                status,
-                headers,
-            )),
+            Body::Static(bytes) => send(&stream, reply.status, &headers, head_only, bytes),
+            Body::Owned(bytes) => send(&stream, reply.status, &headers, head_only, &bytes[..]),
+            Body::File(mut file) => match file.metadata() {
+                Ok(meta) => {
+                    let body: Option<&mut dyn io::Read> = (!head_only).then_some(&mut file);
+                    write_reply(&stream, reply.status, &headers, meta.len(), body)
+                }
+                Err(e) => Err(e),
+            },
         };
         // A browser that closed the connection early (a reload) is not an error of the run.
         if let Err(e) = sent {
-            if e.kind() != io::ErrorKind::BrokenPipe && e.kind() != io::ErrorKind::ConnectionReset {
+            let quiet = [
+                io::ErrorKind::BrokenPipe,
+                io::ErrorKind::ConnectionReset,
+                io::ErrorKind::WouldBlock,
+                io::ErrorKind::TimedOut,
+            ];
+            if !quiet.contains(&e.kind()) {
                 eprintln!("warning: view: sending a reply: {e}");
             }
         }
     }
 }
 
-fn with_headers<R: io::Read>(
-    response: tiny_http::Response<R>,
-    status: tiny_http::StatusCode,
-    headers: [tiny_http::Header; 3],
-) -> tiny_http::Response<R> {
-    headers
-        .into_iter()
-        .fold(response.with_status_code(status), |r, h| r.with_header(h))
+/// A reply whose body is in memory.
+fn send(
+    stream: &TcpStream,
+    status: u16,
+    headers: &[(&str, &str)],
+    head_only: bool,
+    mut bytes: &[u8],
+) -> io::Result<()> {
+    let length = bytes.len() as u64;
+    let body: Option<&mut dyn io::Read> = (!head_only).then_some(&mut bytes);
+    write_reply(stream, status, headers, length, body)
 }

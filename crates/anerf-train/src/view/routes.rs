@@ -38,7 +38,8 @@ impl Reply {
         }
     }
 
-    fn text(status: u16, message: String) -> Self {
+    /// A plain-text reply, for errors.
+    pub fn text(status: u16, message: String) -> Self {
         Self::new(
             status,
             "text/plain; charset=utf-8",
@@ -102,6 +103,11 @@ fn live_curves(run: &RunDir, name: &str) -> Reply {
     let Some(stage) = stage else {
         return Reply::text(404, format!("/live/{name}: expected stage<N>.svg"));
     };
+    let log = run.metrics_log();
+    if let Err(why) = inside_run(run, &log) {
+        let status = if why == Outside::LeadsOut { 403 } else { 404 };
+        return Reply::text(status, format!("{} {why}", log.display()));
+    }
     let lines = match read_log(run) {
         Ok(lines) => lines,
         Err(e) => return Reply::text(404, format!("{e:#}")),
@@ -115,28 +121,63 @@ fn live_curves(run: &RunDir, name: &str) -> Reply {
     }
 }
 
-/// A regular file at `rel` inside the run folder. Symbolic links that lead out of it are refused too:
-/// the resolved path must still start with the resolved run folder.
+/// A regular file at `rel` inside the run folder ([`inside_run`]).
 fn run_file(run: &RunDir, rel: &str) -> Reply {
     let shown = format!("{RUN_PREFIX}{rel}");
     // `/run//etc/x` names `etc/x` in the run: a path joined on must never replace the run folder.
     let rel = rel.trim_start_matches('/');
-    let (Ok(root), Ok(file)) = (run.root.canonicalize(), run.root.join(rel).canonicalize()) else {
-        return Reply::text(404, format!("{shown}: no such file in the run"));
+    let file = match inside_run(run, &run.root.join(rel)) {
+        Ok(file) => file,
+        Err(Outside::Missing) => {
+            return Reply::text(404, format!("{shown}: no such file in the run"))
+        }
+        Err(Outside::NotAFile) => return Reply::text(404, format!("{shown}: not a file")),
+        Err(Outside::LeadsOut) => {
+            return Reply::text(
+                403,
+                format!("refused: {shown} leads outside the run folder"),
+            )
+        }
     };
-    if !file.starts_with(&root) {
-        return Reply::text(
-            403,
-            format!("refused: {shown} leads outside the run folder"),
-        );
-    }
-    if !file.is_file() {
-        return Reply::text(404, format!("{shown}: not a file"));
-    }
     match std::fs::File::open(&file) {
         Ok(f) => Reply::new(200, content_type(&file), Body::File(f)),
         Err(e) => Reply::text(404, format!("{shown}: {e}")),
     }
+}
+
+/// Why [`inside_run`] refused a path.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Outside {
+    Missing,
+    /// Not a regular file (a folder, a FIFO, a device).
+    NotAFile,
+    /// Resolved through symbolic links, it lies outside the run folder.
+    LeadsOut,
+}
+
+impl std::fmt::Display for Outside {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(match self {
+            Outside::Missing => "does not exist",
+            Outside::NotAFile => "is not a regular file",
+            Outside::LeadsOut => "leads outside the run folder (a symbolic link); refused",
+        })
+    }
+}
+
+/// `path` resolved, when it is a regular file inside the run folder: the one rule for every file the
+/// viewer reads or sends, so that a link inside the run never serves what lies outside it.
+pub fn inside_run(run: &RunDir, path: &Path) -> Result<std::path::PathBuf, Outside> {
+    let (Ok(root), Ok(file)) = (run.root.canonicalize(), path.canonicalize()) else {
+        return Err(Outside::Missing);
+    };
+    if !file.starts_with(&root) {
+        return Err(Outside::LeadsOut);
+    }
+    if !file.is_file() {
+        return Err(Outside::NotAFile);
+    }
+    Ok(file)
 }
 
 fn content_type(path: &Path) -> &'static str {

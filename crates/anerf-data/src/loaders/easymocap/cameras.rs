@@ -8,8 +8,10 @@ use glam::DVec3;
 
 use super::super::annots::RawCamera;
 use super::super::check::Checker;
+use super::super::image_files::Inside;
 use crate::error::DataError;
 use crate::formats::opencv_yaml::{FileStorage, Matrix};
+use crate::paths;
 use crate::smpl::rodrigues;
 
 /// Distortion coefficient counts OpenCV uses (k1 k2 p1 p2 [k3 [k4 k5 k6 [s1..s4 [τx τy]]]]).
@@ -21,8 +23,13 @@ pub(super) fn read_cameras(
     root: &Path,
     ck: &mut Checker,
 ) -> Result<Option<(Vec<String>, Vec<Option<RawCamera>>)>, DataError> {
-    let intri = ck.check(FileStorage::read(&root.join("intri.yml")))?;
-    let extri = ck.check(FileStorage::read(&root.join("extri.yml")))?;
+    let inside = Inside::new(root);
+    let read = |name: &str| {
+        let path = root.join(name);
+        inside.check(&path).and_then(|()| FileStorage::read(&path))
+    };
+    let intri = ck.check(read("intri.yml"))?;
+    let extri = ck.check(read("extri.yml"))?;
     let (Some(intri), Some(extri)) = (intri, extri) else {
         return Ok(None);
     };
@@ -34,6 +41,7 @@ pub(super) fn read_cameras(
             )
         })
     });
+    let names = names.and_then(|names| check_names(&names, intri.path()).map(|()| names));
     let Some(names) = ck.check(names)? else {
         return Ok(None);
     };
@@ -58,6 +66,29 @@ pub(super) fn read_cameras(
         .map(|name| ck.check(camera(&intri, &extri, name)))
         .collect::<Result<_, _>>()?;
     Ok(Some((names, cameras)))
+}
+
+/// Each camera name is a folder of `images/` and `mask/`: one plain path component, and listed once (a
+/// camera listed twice could be a held-out view and a training view at once).
+fn check_names(names: &[String], path: &Path) -> Result<(), DataError> {
+    let mut seen = std::collections::HashSet::new();
+    for name in names {
+        paths::check_component(name).map_err(|why| {
+            DataError::invalid(
+                path,
+                format!(
+                    "camera name {name:?} {why}; a camera's name is its folder under images/ and mask/"
+                ),
+            )
+        })?;
+        if !seen.insert(name) {
+            return Err(DataError::invalid(
+                path,
+                format!("'names' lists the camera '{name}' twice; each camera must be listed once"),
+            ));
+        }
+    }
+    Ok(())
 }
 
 /// Camera `name`'s K, distortion, rotation and translation, each of the right shape and finite.

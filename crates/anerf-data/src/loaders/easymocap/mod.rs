@@ -28,7 +28,9 @@ use super::image_files::{self, Inside, MaskRule};
 use super::{build_cameras, LoadOptions};
 use crate::error::DataError;
 use crate::smpl::SmplModel;
-use crate::subject::{DatasetKind, FittedPose, FrameRecord, PosedVertices, Subject};
+use crate::subject::{
+    check_body_size, DatasetKind, FittedPose, FrameRecord, PosedVertices, Subject,
+};
 
 /// Where EasyMocap writes its SMPL fits, in the order they are looked for.
 pub const FIT_FOLDERS: [&str; 2] = ["output-smpl-3d/smpl", "output/smpl"];
@@ -121,6 +123,17 @@ pub(super) fn read(
         );
     }
     let body = model.body(&first.betas, layout.driven);
+    let first_fit = fits.iter().flatten().next().map(|(path, _)| path.clone());
+    if let Some(path) = first_fit {
+        let size = check_body_size(
+            &body.canonical_vertices,
+            &path,
+            "the canonical body (the model shaped by this first fit's shapes)",
+        );
+        if ck.check(size)?.is_none() {
+            return Ok(None);
+        }
+    }
     let mut frames = Vec::with_capacity(frame_numbers.len());
     for (f, ((number, paths), masks)) in frame_numbers.iter().zip(&ims).zip(&masks).enumerate() {
         let (Some((images, masks)), Some(Some((fit_path, fit)))) =
@@ -139,18 +152,23 @@ pub(super) fn read(
         let Some(pose) = ck.check(pose)? else {
             continue;
         };
+        let vertices = PosedVertices::Fitted(FittedPose {
+            model: Arc::clone(&model),
+            model_file: model_file.clone(),
+            fit: fit_path.clone(),
+            params,
+        });
+        // Inspection poses every frame, so that a fit whose shapes make an absurd body is named.
+        if ck.whole_files() && ck.check(vertices.read(None))?.is_none() {
+            continue;
+        }
         frames.push(FrameRecord {
             id: FrameId(f),
             file_index: *number as usize,
             images,
             masks,
             pose,
-            vertices: PosedVertices::Fitted(FittedPose {
-                model: Arc::clone(&model),
-                model_file: model_file.clone(),
-                fit: fit_path.clone(),
-                params,
-            }),
+            vertices,
         });
     }
     let complete = !frames.is_empty() && frames.len() == frame_numbers.len();
@@ -270,11 +288,12 @@ fn read_fits(
         }))?;
         return Ok(None);
     };
+    let inside = Inside::new(root);
     let mut people = Vec::with_capacity(frames.len());
     for &n in frames {
         let path = folder.join(format!("{n:06}.json"));
         let read = if path.is_file() {
-            read_fit_file(&path)
+            inside.check(&path).and_then(|()| read_fit_file(&path))
         } else {
             Err(DataError::Missing {
                 path: path.clone(),

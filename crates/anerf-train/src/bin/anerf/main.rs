@@ -17,6 +17,7 @@ static ALLOCATOR: alloc::BlockCache = alloc::BlockCache::new();
 fn main() -> ExitCode {
     // `jobs::open_device` re-runs this binary to check a GPU backend in a child process.
     anerf_core::device::probe::exit_if_probe_child();
+    end_quietly_on_closed_pipe();
     let cli = Cli::parse();
     if let Err(e) = anerf_core::device::threads::init_pool() {
         eprintln!("warning: compute threads keep rayon's defaults: {e}");
@@ -28,6 +29,17 @@ fn main() -> ExitCode {
             eprintln!("error: {}", error_chain(&e));
             ExitCode::FAILURE
         }
+    }
+}
+
+/// Output to a closed pipe (`anerf info DIR | head -1`) ends the process quietly by SIGPIPE, as Unix tools
+/// do, instead of panicking in `println!` (Rust ignores the signal by default). Sockets are unaffected: the
+/// standard library sends on them with MSG_NOSIGNAL, so a viewer client that goes away stays an error.
+fn end_quietly_on_closed_pipe() {
+    #[cfg(unix)]
+    // SAFETY: restoring a signal's default disposition at start-up, before any other thread exists.
+    unsafe {
+        libc::signal(libc::SIGPIPE, libc::SIG_DFL);
     }
 }
 

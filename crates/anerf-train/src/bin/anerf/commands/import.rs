@@ -21,10 +21,12 @@ pub struct ImportArgs {
     pub format: ImportFormat,
     /// The capture folder.
     pub folder: PathBuf,
-    /// The ZJU-MoCap folder to write (must not exist unless `--overwrite`; never inside the capture).
+    /// The ZJU-MoCap folder to write (must not exist unless `--overwrite`; never inside or around the
+    /// capture or the body model).
     #[arg(long)]
     pub out: PathBuf,
-    /// Replace an existing `--out` folder (only once the new one is complete).
+    /// Replace an existing `--out` folder that an earlier `anerf import` wrote (only once the new one is
+    /// complete; a folder without its `.anerf-import` marker is never deleted).
     #[arg(long)]
     pub overwrite: bool,
     #[command(flatten)]
@@ -40,7 +42,8 @@ pub fn run(args: &ImportArgs) -> Result<()> {
     for note in &subject.notes {
         eprintln!("note: {note}");
     }
-    zju_layout::write_subject(&subject, &args.out, args.overwrite)
+    let inputs: Vec<&std::path::Path> = args.capture.body_model.as_deref().into_iter().collect();
+    zju_layout::write_subject(&subject, &args.out, &inputs, args.overwrite)
         .with_context(|| format!("writing {}", args.out.display()))?;
     println!(
         "wrote {} ({} cameras, {} frames, {} vertices) in the ZJU-MoCap layout",
