@@ -1,40 +1,53 @@
 #!/usr/bin/env bash
 # The GPU device check: one prepared script for a machine with an NVIDIA GPU, CUDA's driver and PyTorch but
 # no Rust toolchain. Given the bundle scripts/gpu/bundle.sh makes on a CPU machine (a stripped release
-# `anerf` built with the cuda and wgpu features, and the GPU kernel test binary), it runs
+# `anerf` built with the cuda and wgpu features, the GPU kernel test binaries and the Vulkan loader; as the
+# folder target/gpu-bundle or the archive target/gpu-bundle.tar.xz, which it unpacks), it runs, in this order
+# of importance,
 #
 #   1. the GPU-vs-flex kernel tests (values and gradients; each backend skipped with its reason when absent),
-#   2. `anerf bench` on every device of DEVICES for the `fast` and `paper` presets,
-#   3. the demo end to end on the first device,
-#   4. scripts/bench/torch_reference.py on the same networks and device (when PyTorch is there),
+#   2. `anerf bench` on the first device of DEVICES for the `fast` and `paper` presets (a 512² render with
+#      `fast`),
+#   3. scripts/bench/torch_reference.py on the same networks and device (when PyTorch is there),
+#   4. the demo end to end on the first device,
 #   5. data-parallel training (`anerf train --devices`, Burn's all-reduce; on cuda:0, or cuda:0,cuda:1 where
 #      two GPUs exist) against one-device training of the same seed: both runs' first losses,
+#   6. `anerf bench` on the other devices of DEVICES,
 #
-# and writes figures.json (every figure, with the GPU's name) and check.log into OUT. Each step has a time
-# limit and a failed step is recorded, not fatal, so one run brings back everything that worked. The whole
-# check is sized for under 8 minutes on one GPU.
+# and writes figures.json (every figure, the GPU's name, the adapter each device ran on) and check.log into
+# OUT. Each step has a time limit and the whole check a deadline (a step that would start past it is skipped
+# with that reason); a failed step is recorded, not fatal, so one run brings back everything that worked.
+#
+# Libraries: where the dynamic loader finds no NVRTC, the CUDA toolkit's or PyTorch's copy is added to
+# LD_LIBRARY_PATH; where it finds no Vulkan loader, the bundle's vulkan/ is; where Vulkan's default search finds
+# no driver manifest, VK_DRIVER_FILES points at the NVIDIA ICD. env.json records what was added.
 #
 # usage: scripts/gpu/device_check.sh OUT
 # environment:
-#   BUNDLE    folder with `anerf` and `gpu_kernels` (default: target/gpu-bundle)
-#   DEVICES   devices to measure, first one runs the demo (default: "cuda wgpu")
+#   BUNDLE    folder with `anerf` and `gpu_kernels`, or a .tar.xz of one (default: target/gpu-bundle, else
+#             target/gpu-bundle.tar.xz)
+#   DEVICES   devices to measure, the first one also runs the demo (default: "cuda wgpu")
 #   PRESETS   bench presets (default: "fast paper"); POINTS, STEPS: points per step, timed steps
 #   DEMO      1 to run the demo (default 1); PYTHON: the interpreter with torch (default python3)
+#   DEADLINE  seconds the whole check may take (default 480)
 # On a machine without a GPU (DEVICES=flex) the same steps run on the CPU: that is how the script itself is
 # tested (crates/anerf-train/tests/device_check.rs).
 set -uo pipefail
 cd "$(dirname "$0")/../.."
 
 out=${1:?usage: $0 OUT}
-bundle=${BUNDLE:-target/gpu-bundle}
+bundle=${BUNDLE:-}
+if [ -z "$bundle" ]; then
+    bundle=target/gpu-bundle
+    [ ! -x "$bundle/anerf" ] && [ -f target/gpu-bundle.tar.xz ] && bundle=target/gpu-bundle.tar.xz
+fi
+deadline=$(( $(date +%s) + ${DEADLINE:-480} ))
 devices=${DEVICES:-cuda wgpu}
 presets=${PRESETS:-fast paper}
 points=${POINTS:-65536}
 steps=${STEPS:-5}
 demo=${DEMO:-1}
 python=${PYTHON:-python3}
-anerf="$bundle/anerf"
-kernels="$bundle/gpu_kernels"
 
 mkdir -p "$out"
 log="$out/check.log"
@@ -46,12 +59,26 @@ trap 'rm -rf "$work"' EXIT
 
 say() { echo "[$(date +%H:%M:%S)] $*" | tee -a "$log" >&2; }
 
-# Runs one step under a time limit: `step NAME LIMIT_S OUTPUT_FILE command...`. The command's stdout goes
-# to OUTPUT_FILE, its stderr to the log; a line of steps.jsonl records name, status and seconds.
+# Records a step that could not run here, with why.
+skipped() {
+    say "skip $1: $2"
+    printf '{"step": "%s", "outcome": "skipped", "reason": "%s", "status": 0, "seconds": 0, "output": ""}\n' \
+        "$1" "$2" >>"$steps_file"
+}
+
+# Runs one step under a time limit (cut to what the deadline leaves): `step NAME LIMIT_S OUTPUT_FILE
+# command...`. The command's stdout goes to OUTPUT_FILE, its stderr to the log; a line of steps.jsonl records
+# name, status and seconds.
 step() {
     local name=$1 limit=$2 output=$3
     shift 3
-    say "start $name: $*"
+    local left=$(( deadline - $(date +%s) ))
+    if [ "$left" -lt 15 ]; then
+        skipped "$name" "out of time: the check's deadline has passed"
+        return 1
+    fi
+    [ "$limit" -gt "$left" ] && limit=$left
+    say "start $name (limit $limit s): $*"
     local start status
     start=$(date +%s%N)
     timeout --kill-after=10 "$limit" "$@" >"$output" 2>>"$log"
@@ -68,17 +95,65 @@ step() {
     return $status
 }
 
-# Records a step that could not run here, with why.
-skipped() {
-    say "skip $1: $2"
-    printf '{"step": "%s", "outcome": "skipped", "reason": "%s", "status": 0, "seconds": 0, "output": ""}\n' \
-        "$1" "$2" >>"$steps_file"
-}
-
+if [ -f "$bundle" ]; then
+    say "unpacking $bundle"
+    mkdir -p "$work/bundle"
+    if ! xz -dc "$bundle" | tar -C "$work/bundle" -xf -; then
+        say "error: cannot unpack $bundle (expected the .tar.xz scripts/gpu/bundle.sh writes)"
+        exit 1
+    fi
+    bundle=$work/bundle
+fi
+anerf="$bundle/anerf"
+kernels="$bundle/gpu_kernels"
 if [ ! -x "$anerf" ]; then
     say "error: no anerf binary at $anerf (make the bundle with scripts/gpu/bundle.sh, or set BUNDLE)"
     exit 1
 fi
+
+# Libraries the binary loads at run time, where the machine's dynamic loader does not find them.
+has_lib() {
+    ldconfig -p 2>/dev/null | awk '{print $1}' | grep -q "^$1" && return 0
+    local dir
+    for dir in ${LD_LIBRARY_PATH//:/ }; do
+        ls "$dir/$1"* >/dev/null 2>&1 && return 0
+    done
+    return 1
+}
+added=()
+if ! has_lib libnvrtc.so; then
+    nvidia_dirs=$("$python" -c 'import glob, os, nvidia
+print(" ".join(sorted({os.path.dirname(p) for d in nvidia.__path__ for p in glob.glob(d + "/**/libnvrtc.so*", recursive=True)})))' 2>/dev/null)
+    for dir in /usr/local/cuda/lib64 /usr/local/cuda/targets/x86_64-linux/lib $nvidia_dirs; do
+        if ls "$dir"/libnvrtc.so* >/dev/null 2>&1; then
+            export LD_LIBRARY_PATH="$dir${LD_LIBRARY_PATH:+:$LD_LIBRARY_PATH}"
+            added+=("nvrtc from $dir")
+            break
+        fi
+    done
+fi
+if ! has_lib libvulkan.so.1 && [ -d "$bundle/vulkan" ]; then
+    export LD_LIBRARY_PATH="$(cd "$bundle/vulkan" && pwd)${LD_LIBRARY_PATH:+:$LD_LIBRARY_PATH}"
+    added+=("vulkan loader from the bundle")
+fi
+if [ -z "${VK_DRIVER_FILES:-}${VK_ICD_FILENAMES:-}" ] \
+    && ! ls /usr/share/vulkan/icd.d/*.json /etc/vulkan/icd.d/*.json >/dev/null 2>&1; then
+    for icd in /usr/local/nvidia/share/vulkan/icd.d/nvidia_icd.json /usr/share/nvidia/nvidia_icd.json; do
+        if [ -f "$icd" ]; then
+            export VK_DRIVER_FILES=$icd
+            added+=("vulkan driver $icd")
+            egl=${icd%/vulkan/icd.d/nvidia_icd.json}/glvnd/egl_vendor.d/10_nvidia.json
+            [ -f "$egl" ] && export __EGL_VENDOR_LIBRARY_FILENAMES=$egl
+            break
+        fi
+    done
+fi
+python3 - "${added[@]}" >"$out/env.json" <<'EOF'
+import json, os, sys
+print(json.dumps({"added": sys.argv[1:], "LD_LIBRARY_PATH": os.environ.get("LD_LIBRARY_PATH"),
+                  "VK_DRIVER_FILES": os.environ.get("VK_DRIVER_FILES")}))
+EOF
+say "libraries: ${added[*]:-none added}"
 
 # The machine.
 {
@@ -88,37 +163,32 @@ say "GPU: $(head -1 "$out/gpu.txt"); CPU: $(nproc) cores"
 
 # 1. Kernel tests against flex (the test binary skips a backend that is not there, naming why).
 if [ -x "$kernels" ]; then
-    step kernel_tests 240 "$out/kernel_tests.txt" "$kernels" --test-threads=1 --nocapture
+    step kernel_tests 120 "$out/kernel_tests.txt" "$kernels" --test-threads=1 --nocapture
 else
     skipped kernel_tests "no test binary at $kernels"
 fi
 
 # 2. Benchmarks: one process per device and preset (a failure on one leaves the others).
-for device in $devices; do
+bench() {
+    local device=$1 preset render
     for preset in $presets; do
         render=0
         [ "$preset" = fast ] && render=512
-        step "bench_${device}_${preset}" 150 "$out/bench_${device}_${preset}.json" \
+        step "bench_${device}_${preset}" 120 "$out/bench_${device}_${preset}.json" \
             "$anerf" bench --device "$device" --presets "$preset" --points "$points" --steps "$steps" \
             --render-size "$render" --subject "$work/subject" --json
     done
-done
-
-# 3. The demo end to end on the first device.
+}
 first=${devices%% *}
-if [ "$demo" = 1 ]; then
-    step "demo_${first}" 240 "$out/demo_${first}.txt" "$anerf" demo --device "$first" --out "$work/demo" --quiet
-    cp "$work/demo/run/eval/novel-view/summary.json" "$out/demo_novel_view.json" 2>/dev/null
-    cp "$work/demo/run/eval/novel-pose/summary.json" "$out/demo_novel_pose.json" 2>/dev/null
-fi
+bench "$first"
 
-# 4. PyTorch on the same networks and device.
+# 3. PyTorch on the same networks and device.
 torch_device=$first
 [ "$first" = wgpu ] && torch_device=cuda
 if "$python" -c "import torch" 2>/dev/null; then
     for preset in $presets; do
         "$anerf" bench --describe --presets "$preset" >"$work/$preset.json" 2>>"$log"
-        step "torch_${torch_device}_${preset}" 120 "$out/torch_${torch_device}_${preset}.json" \
+        step "torch_${torch_device}_${preset}" 90 "$out/torch_${torch_device}_${preset}.json" \
             "$python" scripts/bench/torch_reference.py --config "$work/$preset.json" --device "$torch_device" \
             --points "$points" --steps "$steps"
     done
@@ -126,17 +196,24 @@ else
     skipped torch "$python has no torch"
 fi
 
+# 4. The demo end to end on the first device (its plain progress lines go to the log).
+if [ "$demo" = 1 ]; then
+    step "demo_${first}" 180 "$out/demo_${first}.txt" "$anerf" demo --device "$first" --out "$work/demo"
+    cp "$work/demo/run/eval/novel-view/summary.json" "$out/demo_novel_view.json" 2>/dev/null
+    cp "$work/demo/run/eval/novel-pose/summary.json" "$out/demo_novel_pose.json" 2>/dev/null
+fi
+
 # 5. Data-parallel training against one device, the same seed: the first steps' losses must agree.
 if [ "$first" = cuda ]; then
     parallel=cuda:0
     [ "$(nvidia-smi -L 2>/dev/null | wc -l)" -ge 2 ] && parallel=cuda:0,cuda:1
     [ -d "$work/ddp_subject" ] || "$anerf" synth --preset tiny --out "$work/ddp_subject" 2>>"$log"
-    short_run() {
-        "$anerf" train --data "$work/ddp_subject" --preset tiny --iterations 6 --quiet \
-            --set train.log_every=1 "$@"
-    }
-    step ddp_one_device 180 "$work/ddp_one.txt" short_run --device cuda --out "$work/ddp_one"
-    step ddp_parallel 240 "$work/ddp_parallel.txt" short_run --devices "$parallel" --out "$work/ddp_parallel"
+    # A command line, not a shell function: `timeout` runs programs only.
+    short_run=("$anerf" train --data "$work/ddp_subject" --preset tiny --iterations 6 --quiet
+        --set train.log_every=1)
+    step ddp_one_device 90 "$work/ddp_one.txt" "${short_run[@]}" --device cuda --out "$work/ddp_one"
+    step ddp_parallel 90 "$work/ddp_parallel.txt" "${short_run[@]}" --devices "$parallel" \
+        --out "$work/ddp_parallel"
     python3 - "$work" "$parallel" >"$out/ddp.json" 2>>"$log" <<'EOF'
 import json, pathlib, sys
 work, devices = pathlib.Path(sys.argv[1]), sys.argv[2]
@@ -152,6 +229,11 @@ EOF
 else
     skipped ddp "data-parallel training needs cuda as the first of DEVICES (Burn 0.22.1 all-reduces on CUDA only)"
 fi
+
+# 6. The other devices' benchmarks.
+for device in ${devices#"$first"}; do
+    bench "$device"
+done
 
 # One JSON of everything (Python's standard library only).
 python3 - "$out" <<'EOF'
@@ -171,6 +253,7 @@ for s in steps:
     s["result"] = read(s.get("output", ""))
 figures = {
     "gpu": (out / "gpu.txt").read_text().strip(),
+    "libraries": read("env.json"),
     "steps": steps,
     "demo": {"novel_view": read("demo_novel_view.json"), "novel_pose": read("demo_novel_pose.json")},
     "data_parallel": read("ddp.json"),

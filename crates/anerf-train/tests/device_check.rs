@@ -62,3 +62,173 @@ fn the_device_check_records_every_step_and_goes_on_past_a_failed_one() {
     let stdout = String::from_utf8_lossy(&result.stdout);
     assert!(stdout.contains("failed: bench_cuda_tiny"), "{stdout}");
 }
+
+fn script(name: &str) -> std::path::PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("../../scripts/gpu")
+        .join(name)
+}
+
+/// The bundle as the GPU machine receives it, one `.tar.xz` made by scripts/gpu/pack.sh: the check unpacks
+/// it and runs from it; a damaged archive stops the check with a message naming it; a bundle over the size
+/// limit is refused with no archive left behind.
+#[test]
+fn the_packed_bundle_is_unpacked_and_one_over_the_limit_is_refused() {
+    let dir = tempfile::tempdir().unwrap();
+    let bundle = dir.path().join("bundle");
+    std::fs::create_dir_all(bundle.join("vulkan")).unwrap();
+    std::os::unix::fs::symlink(env!("CARGO_BIN_EXE_anerf"), bundle.join("anerf")).unwrap();
+    let archive = dir.path().join("gpu-bundle.tar.xz");
+    let packed = Command::new("bash")
+        .arg(script("pack.sh"))
+        .arg(&bundle)
+        .arg(&archive)
+        .output()
+        .unwrap();
+    assert!(
+        packed.status.success(),
+        "{}",
+        String::from_utf8_lossy(&packed.stderr)
+    );
+    let out = dir.path().join("out");
+    let result = Command::new("bash")
+        .arg(script("device_check.sh"))
+        .arg(&out)
+        .env("BUNDLE", &archive)
+        .env("DEVICES", "flex")
+        .env("PRESETS", "tiny")
+        .env("POINTS", "1024")
+        .env("STEPS", "1")
+        .env("DEMO", "0")
+        .env("PYTHON", "/bin/false")
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&result.stderr);
+    assert!(result.status.success(), "{stderr}");
+    assert!(stderr.contains("unpacking"), "{stderr}");
+    let figures: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("figures.json")).unwrap()).unwrap();
+    let bench = figures["steps"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|s| s["step"] == "bench_flex_tiny")
+        .unwrap_or_else(|| panic!("{figures:#}"));
+    assert_eq!(bench["outcome"], "passed", "{bench:#}");
+    // CPU backends name no adapter; the libraries record says what was added to the loader's path.
+    assert!(bench["result"]["adapter"].is_null(), "{bench:#}");
+    assert!(figures["libraries"]["added"].is_array(), "{figures:#}");
+
+    // A damaged archive: the check stops, naming it.
+    let broken = dir.path().join("broken.tar.xz");
+    std::fs::write(&broken, b"not an xz stream").unwrap();
+    let result = Command::new("bash")
+        .arg(script("device_check.sh"))
+        .arg(dir.path().join("out2"))
+        .env("BUNDLE", &broken)
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&result.stderr);
+    assert!(
+        !result.status.success()
+            && stderr.contains("cannot unpack")
+            && stderr.contains("broken.tar.xz"),
+        "{stderr}"
+    );
+
+    // Over the limit (1 MiB here, 60 by default): refused, nothing left.
+    let big = dir.path().join("big");
+    std::fs::create_dir(&big).unwrap();
+    // xorshift64: bytes xz cannot compress.
+    let mut state = 0x9e37_79b9_7f4a_7c15u64;
+    let noise: Vec<u8> = (0..3 << 20)
+        .map(|_| {
+            state ^= state << 13;
+            state ^= state >> 7;
+            state ^= state << 17;
+            (state >> 32) as u8
+        })
+        .collect();
+    std::fs::write(big.join("noise"), noise).unwrap();
+    let too_big = dir.path().join("big.tar.xz");
+    let packed = Command::new("bash")
+        .arg(script("pack.sh"))
+        .arg(&big)
+        .arg(&too_big)
+        .env("LIMIT_MIB", "1")
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&packed.stderr);
+    assert!(
+        !packed.status.success() && stderr.contains("over the 1 MiB limit"),
+        "{stderr}"
+    );
+    assert!(!too_big.exists() && !dir.path().join("big.tar.xz.tmp").exists());
+}
+
+/// scripts/gpu/llvm.sh, given an llvm-config (a stand-in here, Debian's LLVM in CI), writes the bundler's
+/// marker and a wrapper that turns absolute library paths into -l flags; a second run changes nothing.
+#[test]
+fn the_llvm_stand_in_is_set_up_once_and_rewrites_library_paths() {
+    let dir = tempfile::tempdir().unwrap();
+    let fake = dir.path().join("llvm-config");
+    std::fs::write(
+        &fake,
+        "#!/bin/sh\ncase \"$*\" in\n  *--system-libs*) echo '-lrt -ldl /usr/lib/x86_64-linux-gnu/libz3.so -lz /opt/x/libxml2.so.2' ;;\n  *) echo '-lLLVMCore -lLLVMSupport' ;;\nesac\n",
+    )
+    .unwrap();
+    let chmod = Command::new("chmod").arg("+x").arg(&fake).status().unwrap();
+    assert!(chmod.success());
+    let data = dir.path().join("data");
+    let run = || {
+        let out = Command::new("bash")
+            .arg(script("llvm.sh"))
+            .env("LLVM_CONFIG", &fake)
+            .env("XDG_DATA_HOME", &data)
+            .output()
+            .unwrap();
+        let stdout = String::from_utf8_lossy(&out.stdout).into_owned();
+        assert!(
+            out.status.success(),
+            "{stdout}{}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+        stdout
+    };
+    assert!(run().starts_with("set up"));
+    let prefix = std::fs::read_dir(data.join("tracel"))
+        .unwrap()
+        .next()
+        .unwrap()
+        .unwrap()
+        .path();
+    assert!(prefix
+        .file_name()
+        .unwrap()
+        .to_string_lossy()
+        .starts_with("tracel-llvm-"));
+    let snapshot = anerf_testing::tree_snapshot(&prefix);
+    let mtime = |p: &Path| std::fs::metadata(p).unwrap().modified().unwrap();
+    let wrapper = prefix.join("bin/llvm-config");
+    let before = (
+        mtime(&wrapper),
+        mtime(&prefix.join(".tracel-llvm-installed")),
+    );
+    assert!(run().starts_with("unchanged"));
+    assert_eq!(anerf_testing::tree_snapshot(&prefix), snapshot);
+    assert_eq!(
+        (
+            mtime(&wrapper),
+            mtime(&prefix.join(".tracel-llvm-installed"))
+        ),
+        before
+    );
+    let libs = Command::new(&wrapper)
+        .args(["--link-static", "--system-libs"])
+        .output()
+        .unwrap();
+    assert_eq!(
+        String::from_utf8_lossy(&libs.stdout).trim(),
+        "-lrt -ldl -lz3 -lz -lxml2"
+    );
+}

@@ -349,6 +349,19 @@ pub fn device_for_test(choice: DeviceChoice, test: &str) -> Option<Device> {
     }
 }
 
+/// Relative tolerance for comparing, against f32 on the CPU, a result that passes through matmuls on
+/// `choice`: `f32_tolerance`, except on CUDA, whose CubeCL matmuls run f32 inputs on TF32 tensor cores
+/// (10-bit mantissa, unit roundoff 2⁻¹¹; a dot product's error grows with its length), as PyTorch does with
+/// `allow_tf32`. Measured on an H200: up to 0.5 % on an MLP output whose inputs round that way (docs/GPU.md).
+pub fn matmul_tolerance(choice: DeviceChoice, f32_tolerance: f64) -> f64 {
+    const TF32: f64 = 1e-2;
+    if choice == DeviceChoice::Cuda {
+        f32_tolerance.max(TF32)
+    } else {
+        f32_tolerance
+    }
+}
+
 /// [`device_for_test`] for every GPU backend (wgpu, CUDA): the devices that passed, in that order; a test
 /// runs its comparison on each. Empty (with each reason printed) on a machine without a working GPU backend.
 pub fn gpu_devices_for_test(test: &str) -> Vec<(DeviceChoice, Device)> {

@@ -8,7 +8,7 @@ use burn::tensor::activation::softmax;
 
 use super::encoding::{encode_points, point_input, PositionalEncoding};
 use super::hash_grid::HashGrid;
-use super::mlp::{torch_linear, SkipMlp, SkipMlpConfig};
+use super::mlp::{linear_rows, torch_linear, SkipMlp, SkipMlpConfig};
 use super::{BlendParameterisation, ModelConfig, PointEncoding, ResidualInit};
 
 /// `w(x) = combine(F_Δw(γ(x), ψ), w^s(x))` for one table of latent codes ψ.
@@ -69,7 +69,7 @@ impl BlendWeightField {
     pub fn residual(&self, points: Tensor<2>, code: usize) -> Tensor<2> {
         let psi = self.codes.weight.val().narrow(0, code, 1);
         let encoded = encode_points(self.grid.as_ref(), self.xyz, points);
-        self.head.forward(self.trunk.forward(encoded, Some(psi)))
+        linear_rows(&self.head, self.trunk.forward(encoded, Some(psi)))
     }
 
     /// Blend weights `[N, K]` (rows sum to 1) at points `[N, 3]`, for code row `code` and prior weights `[N, K]`.

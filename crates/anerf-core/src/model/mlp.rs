@@ -43,6 +43,60 @@ fn uniform_linear(d_in: usize, d_out: usize, fan_in: usize, bias: bool, device: 
         .init(device)
 }
 
+/// Rows per chunk of the batched matmuls that [`rows_matmul`] runs on a GPU.
+pub const GPU_CHUNK_ROWS: usize = 1024;
+
+/// `x · w` for a batch of `[N, C]` point rows. On a GPU backend with at least two chunks of rows, computed
+/// as a batched matmul over chunks of [`GPU_CHUNK_ROWS`] rows ([`chunked_matmul`]); elsewhere as one matmul.
+/// Why: the weight gradient of `x · w` is `xᵀ · g`, one matmul whose inner dimension is N (65,536 points)
+/// and whose output is the small `[C, W]` weight: a GPU runs it on the few thread blocks that output
+/// tiles into, looping over all N. Batched over chunks, autodiff computes one `xᵀ · g` per chunk and sums
+/// them (the broadcast weight's gradient): a split-K that keeps the whole GPU busy (measured on an H200 in
+/// docs/PERFORMANCE.md). The CPU backend gains nothing from it and keeps the plain matmul.
+pub fn rows_matmul(x: Tensor<2>, w: Tensor<2>) -> Tensor<2> {
+    let [n, _] = x.dims();
+    if n >= 2 * GPU_CHUNK_ROWS && crate::device::runs_on_gpu(&x.device()) {
+        chunked_matmul(x, w, GPU_CHUNK_ROWS)
+    } else {
+        x.matmul(w)
+    }
+}
+
+/// `x · w` (`[N, C] · [C, D]`) as a batched matmul over chunks of `rows` rows: `x` padded with zero rows
+/// to whole chunks, viewed as `[chunks, rows, C]`, multiplied by `w` broadcast over the chunks, and cut
+/// back to N rows. The same values and gradients as `x.matmul(w)` (the padding's rows get no gradient).
+pub fn chunked_matmul(x: Tensor<2>, w: Tensor<2>, rows: usize) -> Tensor<2> {
+    let [n, c] = x.dims();
+    let [_, d] = w.dims();
+    let chunks = n.div_ceil(rows.max(1)).max(1);
+    let rows = n.div_ceil(chunks).max(1);
+    let padded = chunks * rows;
+    let x = if padded > n {
+        let device = x.device();
+        Tensor::cat(vec![x, Tensor::zeros([padded - n, c], &device)], 0)
+    } else {
+        x
+    };
+    let z = x
+        .reshape([chunks, rows, c])
+        .matmul(w.unsqueeze::<3>())
+        .reshape([padded, d]);
+    if padded > n {
+        z.slice([0..n])
+    } else {
+        z
+    }
+}
+
+/// `layer` (weight `[C, W]`, optional bias) applied to `[N, C]` point rows through [`rows_matmul`].
+pub fn linear_rows(layer: &Linear, x: Tensor<2>) -> Tensor<2> {
+    let z = rows_matmul(x, layer.weight.val());
+    match &layer.bias {
+        Some(b) => z + b.val().unsqueeze(),
+        None => z,
+    }
+}
+
 /// `layer` applied to the concatenation of `parts` along dimension 1, without building it: `Σ_i x_i · W_i + b`
 /// where `W_i` are the rows of the weight that meet part `i`. Saves copying every activation into a wider
 /// tensor (and slicing its gradient apart again); a part with one row (a per-batch code) is broadcast.
@@ -52,7 +106,7 @@ pub fn linear_over_parts(layer: &Linear, parts: &[Tensor<2>]) -> Tensor<2> {
     let mut out: Option<Tensor<2>> = None;
     for part in parts {
         let [_, d] = part.dims();
-        let z = part.clone().matmul(weight.clone().narrow(0, row, d));
+        let z = rows_matmul(part.clone(), weight.clone().narrow(0, row, d));
         row += d;
         out = Some(match out {
             Some(o) => o + z,
@@ -138,7 +192,7 @@ impl SkipMlp {
             let mut z = if i > 0 && joins_input {
                 linear_over_parts(layer, &[h, input.clone()])
             } else {
-                layer.forward(h)
+                linear_rows(layer, h)
             };
             if joins_input {
                 if let Some(p) = projected.next() {
@@ -205,6 +259,48 @@ mod tests {
         let expect = to_host(layer.forward(Tensor::cat(vec![a, b.repeat_dim(0, 5)], 1)));
         for (g, e) in got.iter().zip(&expect) {
             assert!((g - e).abs() < 1e-5, "{g} vs {e}");
+        }
+    }
+
+    /// The chunked matmul (what a GPU runs) gives the plain matmul's values and both gradients, also when
+    /// the rows are not a whole number of chunks (padding) and when they fit one chunk.
+    #[test]
+    fn chunked_matmul_equals_the_plain_one_with_its_gradients() {
+        let device = cpu_device().autodiff();
+        for (n, rows) in [(37, 8), (64, 16), (5, 100)] {
+            let x =
+                Tensor::<2>::random([n, 6], Distribution::Normal(0.0, 1.0), &device).require_grad();
+            let w =
+                Tensor::<2>::random([6, 3], Distribution::Normal(0.0, 1.0), &device).require_grad();
+            let target = Tensor::<2>::random([n, 3], Distribution::Normal(0.0, 1.0), &device);
+            let run = |chunked: bool| {
+                let z = if chunked {
+                    chunked_matmul(x.clone(), w.clone(), rows)
+                } else {
+                    x.clone().matmul(w.clone())
+                };
+                let loss = (z.clone() * target.clone()).sum();
+                let grads = loss.backward();
+                (
+                    to_host(z),
+                    to_host(x.grad(&grads).unwrap()),
+                    to_host(w.grad(&grads).unwrap()),
+                )
+            };
+            let (plain, chunked) = (run(false), run(true));
+            for (name, a, b) in [
+                ("value", &plain.0, &chunked.0),
+                ("x gradient", &plain.1, &chunked.1),
+                ("w gradient", &plain.2, &chunked.2),
+            ] {
+                assert_eq!(a.len(), b.len(), "{name}");
+                for (p, q) in a.iter().zip(b) {
+                    assert!(
+                        (p - q).abs() <= 1e-5 * (1.0 + p.abs()),
+                        "n {n}, rows {rows}, {name}: {p} vs {q}"
+                    );
+                }
+            }
         }
     }
 

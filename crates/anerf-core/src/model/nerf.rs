@@ -6,7 +6,7 @@ use burn::tensor::activation::{relu, sigmoid};
 
 use super::encoding::{encode_points, point_input, PositionalEncoding};
 use super::hash_grid::HashGrid;
-use super::mlp::{linear_over_parts, torch_linear, SkipMlp, SkipMlpConfig};
+use super::mlp::{linear_over_parts, linear_rows, torch_linear, SkipMlp, SkipMlpConfig};
 use super::{ModelConfig, PointEncoding};
 
 /// Density and colour in canonical space: trunk on `γ(x_can)` (or the field's hash grid) → raw density (no
@@ -102,8 +102,7 @@ impl CanonicalNerf {
 
     /// Raw density only, at canonical points `[N, 3]` (metres): mesh extraction, occupancy, stage 2 masks.
     pub fn density(&self, points: Tensor<2>) -> Tensor<2> {
-        self.density
-            .forward(self.trunk.forward(self.encode(points), None))
+        linear_rows(&self.density, self.trunk.forward(self.encode(points), None))
     }
 
     /// Density and colour at canonical points `[N, 3]` (metres) seen along unit view directions `[N, 3]`
@@ -116,14 +115,14 @@ impl CanonicalNerf {
     ) -> RadianceSample {
         let encoded_dirs = self.dir.encode(dirs);
         let h = self.trunk.forward(self.encode(points), None);
-        let density = self.density.forward(h.clone());
+        let density = linear_rows(&self.density, h.clone());
         // The code is one row for all points: its part of `appearance_fc` is computed once and broadcast.
         let code = self.appearance.weight.val().narrow(0, appearance_index, 1);
-        let f = linear_over_parts(&self.appearance_fc, &[self.feature.forward(h), code]);
+        let f = linear_over_parts(&self.appearance_fc, &[linear_rows(&self.feature, h), code]);
         let v = relu(linear_over_parts(&self.view_fc, &[f, encoded_dirs]));
         RadianceSample {
             density,
-            rgb: sigmoid(self.rgb.forward(v)),
+            rgb: sigmoid(linear_rows(&self.rgb, v)),
         }
     }
 

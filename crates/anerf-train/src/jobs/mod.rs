@@ -11,7 +11,7 @@ mod stages;
 
 use std::path::Path;
 
-use anerf_core::device::probe::checked_device;
+use anerf_core::device::probe::{checked_device, CheckedDevice};
 use anerf_core::device::DeviceSpec;
 use anerf_core::model::AnimatableNerf;
 use anerf_core::DeviceChoice;
@@ -74,15 +74,18 @@ pub fn data_parallel_devices(specs: &[DeviceSpec], options: &JobOptions) -> Resu
 /// then with [`JobOptions::progress`].
 pub fn open_device(choice: DeviceChoice, options: &JobOptions) -> Result<Device> {
     static ANNOUNCED: std::sync::Once = std::sync::Once::new();
-    let exe = std::env::current_exe().context("locating the anerf executable")?;
-    let checked =
-        checked_device(choice, || std::process::Command::new(exe)).with_context(|| {
-            format!("cannot use device '{choice}' (`--device flex` runs on the CPU)")
-        })?;
+    let checked = open_checked_device(choice)?;
     if let (Some(adapter), true) = (&checked.adapter, options.progress) {
         ANNOUNCED.call_once(|| eprintln!("device {choice}: {adapter}"));
     }
     Ok(checked.device)
+}
+
+/// The device of `choice` with the adapter its probe child ran on, checked as [`open_device`] does.
+pub fn open_checked_device(choice: DeviceChoice) -> Result<CheckedDevice> {
+    let exe = std::env::current_exe().context("locating the anerf executable")?;
+    checked_device(choice, || std::process::Command::new(exe))
+        .with_context(|| format!("cannot use device '{choice}' (`--device flex` runs on the CPU)"))
 }
 
 /// Opens a run folder and its config with the options' overrides, and checks that a step of `work` fits

@@ -21,7 +21,7 @@ use anerf_core::tensor::from_rows;
 use anerf_core::DeviceChoice;
 use anerf_train::config::{self, Settings};
 use anerf_train::experiment::Experiment;
-use anerf_train::jobs::load_trained;
+use anerf_train::jobs::{load_trained, open_checked_device};
 use anerf_train::render::render_view;
 use anerf_train::run_dir::RunDir;
 use anerf_train::training::optimizer;
@@ -88,6 +88,8 @@ struct Described {
 #[derive(Debug, Clone, Serialize)]
 pub struct PresetFigures {
     pub preset: &'static str,
+    /// The GPU adapter the device runs on, as its probe reported it; `None` on CPU backends.
+    pub adapter: Option<String>,
     pub points: usize,
     /// Seconds of each timed step (forward, backward, Adam).
     pub step_seconds: Vec<f64>,
@@ -140,7 +142,9 @@ pub fn run(args: &BenchArgs) -> Result<Vec<PresetFigures>> {
         }
         return Ok(Vec::new());
     }
-    let device = args.device.device().map_err(anyhow::Error::msg)?;
+    // Probed like every job's device, so a broken driver is an error and the figures name the adapter.
+    let checked = open_checked_device(args.device)?;
+    let (device, adapter) = (checked.device, checked.adapter);
     if !args.json {
         println!(
             "{:<6} {:>9} {:>12} {:>10} {:>9} {:>10} {:>8} {:>10} {:>6}",
@@ -189,6 +193,7 @@ pub fn run(args: &BenchArgs) -> Result<Vec<PresetFigures>> {
         let step_median = median(&step_seconds);
         let figures = PresetFigures {
             preset: preset.name(),
+            adapter: adapter.clone(),
             points: args.points,
             points_per_second: step_median.map(|s| args.points as f64 / s),
             step_median,
