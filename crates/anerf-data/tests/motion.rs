@@ -297,6 +297,31 @@ fn bad_motion_files_are_named_with_the_key_at_fault() {
             "{name}: {err}"
         );
     }
+    // A one-dimensional `poses` (one frame written without its frame axis) names the shape it needs.
+    let dir = tempfile::tempdir().unwrap();
+    let flat_poses = dir.path().join("flat.npz");
+    let array = |shape: Vec<usize>, value: f64| {
+        let n = shape.iter().product();
+        anerf_data::formats::NdArray::new(
+            shape,
+            anerf_data::formats::ArrayData::F64(vec![value; n]),
+        )
+        .unwrap()
+    };
+    anerf_data::formats::npz::write_npz(
+        &flat_poses,
+        &[
+            ("poses", &array(vec![156], 0.0)),
+            ("trans", &array(vec![40, 3], 0.0)),
+            ("mocap_framerate", &array(vec![], 120.0)),
+        ],
+    )
+    .unwrap();
+    let err = Motion::read(&flat_poses, None).unwrap_err().to_string();
+    assert!(
+        err.contains("flat.npz") && err.contains("has shape (156,)") && err.contains("T = 40"),
+        "{err}"
+    );
     let err = Motion::read(&fixture("motion/easymocap"), Some(7))
         .unwrap_err()
         .to_string();

@@ -93,7 +93,16 @@ fn read_amass(path: &Path) -> Result<Motion, DataError> {
     super::check_rate(rate, path, &format!("'{rate_key}'"))?;
     let poses = if has(&npz, "poses") {
         let p = numeric(&mut npz, path, "poses")?;
-        let width = p.shape().get(1).copied().unwrap_or(0);
+        let &[_, width] = p.shape() else {
+            return Err(DataError::invalid(
+                path,
+                format!(
+                    "'poses' has shape {}; expected (T, 72, 156, 162 or 165) with T = {t} frames like \
+                     'trans'",
+                    shape_text(p.shape())
+                ),
+            ));
+        };
         Some((finite(&p, path, "poses", &[Some(t), Some(width)])?, width))
     } else {
         None
