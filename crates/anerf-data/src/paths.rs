@@ -1,7 +1,9 @@
 //! The path policy of everything anerf writes: a name that comes from input (a file's stem, a config's
 //! `name`) becomes one plain path component before it is joined to a folder, so it never leaves that
 //! folder; an output folder never holds, nor lies inside, an input of the same command; and a folder is
-//! replaced (`--overwrite`) only when anerf's marker says anerf made it for that purpose.
+//! replaced (`--overwrite`) only when anerf's marker says anerf made it for that purpose. And the policy of
+//! everything anerf reads from a folder (a dataset, a run): a file must lie inside it after symbolic links
+//! are followed ([`Folder`]).
 
 use std::io;
 use std::path::{Component, Path, PathBuf};
@@ -70,6 +72,60 @@ pub fn resolved(path: &Path) -> io::Result<PathBuf> {
     let mut out = existing.canonicalize().unwrap_or(existing);
     out.extend(rest.iter().rev());
     Ok(out)
+}
+
+/// A folder whose files must lie inside it after symbolic links are followed: a dataset read by the
+/// loaders, a run served by the viewer. `what` names it in errors ("dataset folder").
+pub struct Folder {
+    /// The folder resolved through symbolic links (as given when it cannot be resolved).
+    root: PathBuf,
+    what: &'static str,
+}
+
+/// Where a path leads, resolved through symbolic links.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum Located {
+    /// Inside the folder, at this resolved path.
+    Inside(PathBuf),
+    /// Outside it, at this resolved path.
+    Outside(PathBuf),
+    /// Nothing there (or it cannot be resolved).
+    Missing,
+}
+
+impl Folder {
+    pub fn new(root: &Path, what: &'static str) -> Self {
+        Self {
+            root: root.canonicalize().unwrap_or_else(|_| root.to_path_buf()),
+            what,
+        }
+    }
+
+    /// Where `path` leads.
+    pub fn locate(&self, path: &Path) -> Located {
+        match path.canonicalize() {
+            Ok(real) if real.starts_with(&self.root) => Located::Inside(real),
+            Ok(real) => Located::Outside(real),
+            Err(_) => Located::Missing,
+        }
+    }
+
+    /// Refuses a file that resolves outside the folder, naming where it leads, never what it holds. A file
+    /// that does not exist is left for its reader to report.
+    pub fn check(&self, path: &Path) -> Result<(), crate::error::DataError> {
+        match self.locate(path) {
+            Located::Outside(real) => Err(crate::error::DataError::invalid(
+                path,
+                format!(
+                    "leads through a symbolic link to {}, outside the {} {}; its files must lie inside it",
+                    real.display(),
+                    self.what,
+                    self.root.display()
+                ),
+            )),
+            Located::Inside(_) | Located::Missing => Ok(()),
+        }
+    }
 }
 
 /// How an output folder and an input of the same command overlap.

@@ -9,7 +9,7 @@ use anerf_core::geometry::{Pose, Skeleton};
 use anerf_data::formats::npz::read_npz_arrays;
 use anerf_data::formats::read_npy;
 use anerf_data::motion::{
-    retarget, FrameRange, Motion, MotionFormat, Placement, Scene, TargetBody,
+    retarget, FrameRange, Motion, MotionFormat, Placement, Scene, TargetBody, Timing,
 };
 use anerf_data::SkinningWeights;
 use anerf_testing::{assert_close, fixture, fixtures_dir, Tolerance};
@@ -274,6 +274,51 @@ fn resampling_and_ranges_apply_to_read_motions() {
     let err = folder.rate(None).unwrap_err().to_string();
     assert!(err.contains("--motion-fps") && err.contains("zju"), "{err}");
     assert_eq!(folder.rate(Some(25.0)).unwrap(), 25.0);
+}
+
+/// A timed read (only the recorded frames the output needs) gives exactly the frames of reading the whole
+/// motion, resampling it and cutting it, for rates that divide and that do not, for folders whose rate is
+/// declared, and refuses the same ranges with the same message.
+#[test]
+fn timed_reads_equal_whole_reads_resampled_and_cut() {
+    let cases = [
+        ("motion/walk.npz", None, None, "7:300:5"),
+        ("motion/walk.npz", None, Some(50.0), "3:41:3"),
+        ("motion/walk.npz", None, Some(30.0), "299:"),
+        ("motion/walk.npz", None, None, "1000:1100"),
+        ("motion/walk.npz", None, Some(170.0), "100:"),
+        ("motion/zju", Some(25.0), Some(60.0), "1:"),
+        ("motion/zju", Some(25.0), None, "1:2"),
+        ("motion/easymocap", Some(30.0), Some(45.0), "2:"),
+    ];
+    for (file, declared, fps, range) in cases {
+        let path = fixture(file);
+        let frames: FrameRange = range.parse().unwrap();
+        let whole = Motion::read(&path, None).unwrap();
+        let from = whole.rate(declared).unwrap();
+        let to = fps.unwrap_or(from);
+        let want = whole.resampled(from, to).unwrap().select(frames).unwrap();
+        let timing = Timing {
+            declared_fps: declared,
+            fps,
+            frames,
+        };
+        let got = Motion::read_timed(&path, None, &timing).unwrap();
+        assert_eq!(got, want, "{file} at {fps:?} fps, frames {range}");
+        assert!(!got.frames.is_empty());
+    }
+    let outside = Timing {
+        declared_fps: None,
+        fps: Some(30.0),
+        frames: "300:301".parse().unwrap(),
+    };
+    let err = Motion::read_timed(&fixture("motion/walk.npz"), None, &outside)
+        .unwrap_err()
+        .to_string();
+    assert!(
+        err.contains("walk.npz") && err.contains("outside the motion's 300 frames"),
+        "{err}"
+    );
 }
 
 #[test]

@@ -1,7 +1,8 @@
 //! `.npz` archives cost memory for what is read, never for what a hostile archive claims or holds besides:
 //! a member whose header or zip directory asks for more than the budget is refused before it is inflated,
-//! and members a reader does not use are never inflated. Memory is measured by this test binary's own
-//! allocator (one test in the binary, so nothing else allocates meanwhile), not by timing.
+//! members a reader does not use are never inflated, and a cut of a long motion inflates only the frames
+//! it keeps. Memory is measured by this test binary's own allocator (one test in the binary, so nothing
+//! else allocates meanwhile), not by timing.
 
 use std::alloc::{GlobalAlloc, Layout, System};
 use std::io::Write;
@@ -10,7 +11,8 @@ use std::sync::atomic::{AtomicUsize, Ordering};
 
 use anerf_data::formats::npz::Npz;
 use anerf_data::formats::{ArrayData, NdArray};
-use anerf_data::motion::Motion;
+use anerf_data::motion::{Motion, Root, Timing};
+use anerf_testing::npy_f64_header;
 
 /// The system allocator, counting the bytes live now and the most live since [`reset_peak`].
 struct Counting;
@@ -50,25 +52,6 @@ fn peak_above(start: usize) -> usize {
 
 const MIB: usize = 1 << 20;
 
-/// A `.npy` header (version 1) for `shape` of little-endian float64, padded as numpy pads it.
-fn npy_header(shape: &[usize]) -> Vec<u8> {
-    let dims: Vec<String> = shape.iter().map(|d| d.to_string()).collect();
-    let shape = if dims.len() == 1 {
-        format!("({},)", dims[0])
-    } else {
-        format!("({})", dims.join(", "))
-    };
-    let mut dict = format!("{{'descr': '<f8', 'fortran_order': False, 'shape': {shape}, }}");
-    while (10 + dict.len() + 1) % 64 != 0 {
-        dict.push(' ');
-    }
-    dict.push('\n');
-    let mut out = b"\x93NUMPY\x01\x00".to_vec();
-    out.extend((dict.len() as u16).to_le_bytes());
-    out.extend(dict.as_bytes());
-    out
-}
-
 /// What follows a member's header: `n` zero bytes (streamed, so writing allocates little), or values.
 enum Payload {
     Zeros(usize),
@@ -84,7 +67,7 @@ fn write_archive(path: &Path, members: &[(&str, Vec<usize>, Payload)]) {
     let zeros = vec![0u8; MIB];
     for (name, shape, data) in members {
         zip.start_file(format!("{name}.npy"), options).unwrap();
-        zip.write_all(&npy_header(shape)).unwrap();
+        zip.write_all(&npy_f64_header(shape, false)).unwrap();
         match data {
             Payload::Zeros(n) => {
                 let mut left = *n;
@@ -186,5 +169,42 @@ fn npz_members_cost_memory_only_when_read_and_never_past_the_budget() {
     assert_eq!(
         npz.array("trans").unwrap(),
         NdArray::new(vec![4, 3], ArrayData::F64(trans)).unwrap()
+    );
+    drop(npz);
+
+    // 4. A long motion (100,000 frames: 125 MB of poses) cut to four frames near its end costs the
+    // memory of those frames, not of the motion; the frames are the ones asked for.
+    let long = dir.path().join("long.npz");
+    let frames = 100_000;
+    let trans = (0..frames).flat_map(|f| [0.0, 0.0, f as f64]).collect();
+    write_archive(
+        &long,
+        &[
+            ("poses", vec![frames, 156], Payload::Zeros(frames * 156 * 8)),
+            ("trans", vec![frames, 3], Payload::Values(trans)),
+            ("mocap_framerate", vec![], Payload::Values(vec![120.0])),
+        ],
+    );
+    let timing = Timing {
+        declared_fps: None,
+        fps: None,
+        frames: "99990:99994".parse().unwrap(),
+    };
+    let start = reset_peak();
+    let cut = Motion::read_timed(&long, None, &timing).unwrap();
+    let heights: Vec<f64> = cut
+        .frames
+        .iter()
+        .map(|f| match f.root {
+            Root::Standard { trans } => trans.z,
+            Root::Placed { .. } => unreachable!("AMASS roots are standard"),
+        })
+        .collect();
+    assert_eq!(heights, [99990.0, 99991.0, 99992.0, 99993.0]);
+    drop(cut);
+    assert!(
+        peak_above(start) < 4 * MIB,
+        "peak {} bytes",
+        peak_above(start)
     );
 }

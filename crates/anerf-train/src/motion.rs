@@ -9,7 +9,7 @@ use anerf_core::geometry::{BoneMatrices, Pose};
 use anerf_core::model::{AnimatableNerf, BlendWeightField, FrameCode, FrameInputs};
 use anerf_core::{FrameId, ViewId};
 use anerf_data::atomic::{replace_dir, temp_dir_beside, write_bytes};
-use anerf_data::motion::{retarget, FrameRange, Motion, Placement, Scene};
+use anerf_data::motion::{retarget, FrameRange, Motion, Placement, Scene, Timing};
 use anerf_data::paths::safe_component;
 use anerf_data::prepare::PosedBody;
 use anyhow::{bail, Context, Result};
@@ -97,15 +97,12 @@ impl MotionClip {
     /// Reads, resamples, cuts and retargets `request` onto `exp`'s subject; `view` is the camera the
     /// body faces by default.
     pub fn new(request: &MotionRequest, exp: &Experiment, view: ViewId) -> Result<Self> {
-        let motion = Motion::read(&request.path, request.person)?;
-        let from = motion.rate(request.motion_fps.or(request.fps).or(Some(30.0)))?;
-        let to = request.fps.unwrap_or(from);
-        let motion = if to == from {
-            motion
-        } else {
-            motion.resampled(from, to)?
+        let timing = Timing {
+            declared_fps: request.motion_fps.or(request.fps).or(Some(30.0)),
+            fps: request.fps,
+            frames: request.frames,
         };
-        let motion = motion.select(request.frames)?;
+        let motion = Motion::read_timed(&request.path, request.person, &timing)?;
         let floor = match request.place {
             Place::Auto => motion.up.is_some(),
             Place::Recorded => false,
@@ -129,7 +126,7 @@ impl MotionClip {
         let poses = retarget(&motion, exp.prepared.target_body(), &placement)?;
         Ok(Self {
             name: request.name(),
-            fps: to,
+            fps: motion.fps.expect("a timed motion records its output rate"),
             poses,
         })
     }

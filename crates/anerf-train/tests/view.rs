@@ -254,6 +254,132 @@ fn no_request_reaches_outside_the_run_folder() {
     });
 }
 
+/// Every file under `dir` (not following links) with its bytes.
+fn files_under(dir: &Path) -> Vec<Vec<u8>> {
+    let mut out = Vec::new();
+    for entry in std::fs::read_dir(dir).unwrap() {
+        let path = entry.unwrap().path();
+        let meta = std::fs::symlink_metadata(&path).unwrap();
+        if meta.is_dir() {
+            out.extend(files_under(&path));
+        } else if meta.is_file() {
+            out.push(std::fs::read(&path).unwrap());
+        }
+    }
+    out
+}
+
+/// Request paths mutated from real ones (traversal tokens, encodings, separators, bytes flipped, cut and
+/// repeated) are routed without a panic, answered with a status the viewer sends, and whatever is
+/// served is one of the run's own files or the viewer's own output: never the secret beside the run,
+/// which a link inside the run points at.
+#[test]
+fn mutated_request_paths_never_leave_the_run_or_panic() {
+    use anerf_train::run_dir::RunDir;
+    use anerf_train::view::routes::{route, Body};
+    use rand::{Rng, SeedableRng};
+
+    let dir = tempfile::tempdir().unwrap();
+    let run = RunDir::open(&fake_run(dir.path())).unwrap();
+    let run_files = files_under(&run.root);
+    let seeds = [
+        "/",
+        "/api/run",
+        "/assets/app.js",
+        "/live/stage1.svg",
+        "/run/config.toml",
+        "/run/eval/novel-view/summary.json?v=3",
+        "/run/export/avatar.glb",
+        "/run/outside/secret.txt",
+        "/run/eval/novel-view/images/novel-view_frame0000_view01_pred.png",
+    ];
+    let tokens = [
+        "..",
+        "../",
+        "/..",
+        "%2e%2e",
+        "%2E.",
+        ".%2e",
+        "%2f",
+        "%2F",
+        "/",
+        "//",
+        "\\",
+        "%5c",
+        "%00",
+        "%",
+        "%zz",
+        "%ff",
+        "%c0%ae",
+        "?",
+        "#",
+        ".",
+        "~",
+        "outside",
+        "secret.txt",
+        "/run",
+        "/assets/",
+        "/live/",
+        "stage99999999999999999999.svg",
+        "\u{202e}",
+    ];
+    let methods = ["GET", "GET", "GET", "HEAD", "POST", "get", ""];
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(0x7075);
+    let mut served = 0;
+    for round in 0..4000 {
+        let mut url = seeds[round % seeds.len()].as_bytes().to_vec();
+        for _ in 0..rng.random_range(1..4) {
+            let at = rng.random_range(0..=url.len());
+            match rng.random_range(0..4) {
+                0 => {
+                    let token = tokens[rng.random_range(0..tokens.len())].as_bytes();
+                    url.splice(at..at, token.iter().copied());
+                }
+                1 => url.truncate(at.max(1)),
+                2 if !url.is_empty() => {
+                    let i = at.min(url.len() - 1);
+                    url[i] ^= 1 << rng.random_range(0..7);
+                }
+                _ => {
+                    let tail = url[at..].to_vec();
+                    url.extend(tail);
+                }
+            }
+        }
+        let url = String::from_utf8_lossy(&url).into_owned();
+        let method = methods[rng.random_range(0..methods.len())];
+        let reply = std::panic::catch_unwind(|| route(&run, method, &url))
+            .unwrap_or_else(|_| panic!("round {round}: routing {method} {url:?} panicked"));
+        assert!(
+            [200, 400, 403, 404, 405, 500].contains(&reply.status),
+            "round {round}: {method} {url:?} answered {}",
+            reply.status
+        );
+        let body = match reply.body {
+            Body::File(mut file) => {
+                let mut bytes = Vec::new();
+                file.read_to_end(&mut bytes).unwrap();
+                assert!(
+                    run_files.contains(&bytes),
+                    "round {round}: {url:?} served a file that is not the run's"
+                );
+                served += 1;
+                bytes
+            }
+            Body::Owned(bytes) => bytes,
+            Body::Static(bytes) => bytes.to_vec(),
+        };
+        assert!(
+            !String::from_utf8_lossy(&body).contains(SECRET),
+            "round {round}: {method} {url:?} leaked the secret"
+        );
+    }
+    assert!(
+        served > 20,
+        "some mutated paths should still name run files: {served}"
+    );
+}
+
 #[test]
 fn view_says_what_it_expected_of_a_folder_and_of_a_port() {
     let dir = tempfile::tempdir().unwrap();

@@ -28,8 +28,30 @@ pub fn read_bytes(path: &Path) -> Result<Vec<u8>, DataError> {
     std::fs::read(path).map_err(|e| DataError::io(path, e))
 }
 
-/// Refuses a path that is not a regular file (after following links), naming what it is.
-pub fn check_regular(path: &Path) -> Result<(), DataError> {
+/// Reads a whole regular file of at most `max` bytes, refusing a larger one before reading it; `what`
+/// names the kind of file in the error ("an OpenCV calibration file"). A file that grows while it is
+/// read is still cut at `max + 1` bytes and refused.
+pub fn read_bytes_at_most(path: &Path, max: u64, what: &str) -> Result<Vec<u8>, DataError> {
+    use std::io::Read;
+    let too_large =
+        |len: u64| DataError::invalid(path, format!("is {len} bytes; {what} may be at most {max}"));
+    let len = check_regular(path)?.len();
+    if len > max {
+        return Err(too_large(len));
+    }
+    let mut bytes = Vec::with_capacity(len as usize);
+    std::fs::File::open(path)
+        .and_then(|f| f.take(max + 1).read_to_end(&mut bytes))
+        .map_err(|e| DataError::io(path, e))?;
+    if bytes.len() as u64 > max {
+        return Err(too_large(bytes.len() as u64));
+    }
+    Ok(bytes)
+}
+
+/// Refuses a path that is not a regular file (after following links), naming what it is; returns the
+/// file's metadata otherwise.
+pub fn check_regular(path: &Path) -> Result<std::fs::Metadata, DataError> {
     let meta = std::fs::metadata(path).map_err(|e| {
         if e.kind() == std::io::ErrorKind::NotFound {
             DataError::Missing {
@@ -42,7 +64,7 @@ pub fn check_regular(path: &Path) -> Result<(), DataError> {
     })?;
     let kind = meta.file_type();
     if kind.is_file() {
-        return Ok(());
+        return Ok(meta);
     }
     #[cfg(unix)]
     let what = {
@@ -110,4 +132,34 @@ pub enum FormatWriteError {
     Archive(String),
     #[error(transparent)]
     Io(#[from] crate::atomic::WriteError),
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A file of exactly the bound is read whole; one byte more is refused naming the file, its size and
+    /// the bound; a folder is refused as not a regular file.
+    #[test]
+    fn files_past_the_bound_are_refused_before_reading() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("intri.yml");
+        std::fs::write(&path, vec![b'x'; 100]).unwrap();
+        assert_eq!(
+            read_bytes_at_most(&path, 100, "a test file").unwrap().len(),
+            100
+        );
+        let err = read_bytes_at_most(&path, 99, "a test file")
+            .unwrap_err()
+            .to_string();
+        assert!(
+            err.contains("intri.yml")
+                && err.contains("is 100 bytes; a test file may be at most 99"),
+            "{err}"
+        );
+        let err = read_bytes_at_most(dir.path(), 99, "a test file")
+            .unwrap_err()
+            .to_string();
+        assert!(err.contains("is a folder"), "{err}");
+    }
 }

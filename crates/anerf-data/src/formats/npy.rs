@@ -386,9 +386,10 @@ pub struct Header {
 }
 
 /// The header of a `.npy` file (element type, order, shape) from its first bytes alone (the data is not
-/// needed).
-pub fn peek_header(bytes: &[u8]) -> Result<Header, NpyError> {
-    Ok(split_header(bytes)?.0)
+/// needed), and the offset in bytes at which its data starts.
+pub fn peek_header(bytes: &[u8]) -> Result<(Header, usize), NpyError> {
+    let (header, body) = split_header(bytes)?;
+    Ok((header, bytes.len() - body.len()))
 }
 
 /// The parsed header of a `.npy` file and the data after it.

@@ -49,20 +49,11 @@ struct Line<'a> {
 impl FileStorage {
     /// Reads and parses `path` (at most [`MAX_BYTES`]).
     pub fn read(path: &Path) -> Result<Self, DataError> {
-        super::check_regular(path)?;
-        let len = std::fs::metadata(path)
-            .map_err(|e| DataError::io(path, e))?
-            .len();
-        if len > MAX_BYTES {
-            return Err(DataError::invalid(
-                path,
-                format!(
-                    "is {len} bytes; an OpenCV calibration file may be at most {MAX_BYTES} (thousands of \
-                     cameras take a few megabytes)"
-                ),
-            ));
-        }
-        let bytes = super::read_bytes(path)?;
+        let bytes = super::read_bytes_at_most(
+            path,
+            MAX_BYTES,
+            "an OpenCV calibration file (thousands of cameras take a few megabytes)",
+        )?;
         let text = std::str::from_utf8(&bytes)
             .map_err(|e| DataError::invalid(path, format!("is not UTF-8 text: {e}")))?;
         Self::parse(text, path)

@@ -15,26 +15,7 @@ pub(crate) fn finite(
     field: &str,
     expected: &[Option<usize>],
 ) -> Result<Vec<f64>, DataError> {
-    let fits = arr.shape().len() == expected.len()
-        && arr
-            .shape()
-            .iter()
-            .zip(expected)
-            .all(|(d, e)| e.is_none_or(|e| e == *d));
-    if !fits {
-        let want: Vec<String> = expected
-            .iter()
-            .map(|e| e.map_or("any".to_string(), |n| n.to_string()))
-            .collect();
-        return Err(DataError::invalid(
-            path,
-            format!(
-                "{field} has shape {}, expected ({})",
-                shape_text(arr.shape()),
-                want.join(", ")
-            ),
-        ));
-    }
+    check_shape(arr.shape(), path, field, expected)?;
     let v = arr.to_f64();
     if let Some(i) = v.iter().position(|x| !x.is_finite()) {
         return Err(DataError::invalid(
@@ -43,6 +24,35 @@ pub(crate) fn finite(
         ));
     }
     Ok(v)
+}
+
+/// Refuses a `shape` of `field` that does not match `expected` (`None` = any size), naming both.
+pub(crate) fn check_shape(
+    shape: &[usize],
+    path: &Path,
+    field: &str,
+    expected: &[Option<usize>],
+) -> Result<(), DataError> {
+    let fits = shape.len() == expected.len()
+        && shape
+            .iter()
+            .zip(expected)
+            .all(|(d, e)| e.is_none_or(|e| e == *d));
+    if fits {
+        return Ok(());
+    }
+    let want: Vec<String> = expected
+        .iter()
+        .map(|e| e.map_or("any".to_string(), |n| n.to_string()))
+        .collect();
+    Err(DataError::invalid(
+        path,
+        format!(
+            "{field} has shape {}, expected ({})",
+            shape_text(shape),
+            want.join(", ")
+        ),
+    ))
 }
 
 /// A shape as NumPy prints it: `(7, 5)`, `(3,)`, `()`.

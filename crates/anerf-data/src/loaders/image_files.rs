@@ -10,40 +10,11 @@ use super::annots::{FramePaths, RawCamera};
 use super::check::Checker;
 use crate::error::DataError;
 use crate::formats::images;
+use crate::paths::Folder;
 use crate::subject::DatasetKind;
 
 /// Width and height in pixels.
 pub(super) type Size = (u32, u32);
-
-/// The dataset folder as resolved on disk, for checking where files really lie.
-pub(super) struct Inside {
-    root: PathBuf,
-}
-
-impl Inside {
-    pub fn new(root: &Path) -> Self {
-        Self {
-            root: root.canonicalize().unwrap_or_else(|_| root.to_path_buf()),
-        }
-    }
-
-    /// Refuses a file that resolves outside the folder, as `..` in a path is refused; names where it
-    /// leads, never what it holds. A file that does not exist is left for its reader to report.
-    pub fn check(&self, path: &Path) -> Result<(), DataError> {
-        match path.canonicalize() {
-            Ok(real) if !real.starts_with(&self.root) => Err(DataError::invalid(
-                path,
-                format!(
-                    "leads through a symbolic link to {}, outside the dataset folder {}; dataset files \
-                     must lie inside it",
-                    real.display(),
-                    self.root.display()
-                ),
-            )),
-            _ => Ok(()),
-        }
-    }
-}
 
 /// Each distinct item and how often it occurs, in order of first occurrence.
 pub(crate) fn tally<T: PartialEq>(items: impl IntoIterator<Item = T>) -> Vec<(T, usize)> {
@@ -76,7 +47,7 @@ fn by_camera<T>(
 
 /// The size of each file, checked to lie inside the folder; whole-file reads also find truncation.
 fn read_sizes(
-    inside: &Inside,
+    inside: &Folder,
     paths: &[(usize, PathBuf)],
     ck: &Checker,
 ) -> Vec<Result<Size, DataError>> {
@@ -98,7 +69,7 @@ fn read_sizes(
 /// principal point centres best). Unreadable images and those of another size are the problems.
 pub(super) fn check_images(
     root: &Path,
-    inside: &Inside,
+    inside: &Folder,
     raw: &[Option<RawCamera>],
     ims: &[Option<FramePaths>],
     ck: &mut Checker,
@@ -190,7 +161,7 @@ impl MaskRule {
 /// named when none exists.
 pub(super) fn resolve_masks(
     root: &Path,
-    inside: &Inside,
+    inside: &Folder,
     rule: &MaskRule,
     ims: &[Option<FramePaths>],
     ck: &mut Checker,
@@ -244,7 +215,7 @@ fn resolve_mask(root: &Path, rule: &MaskRule, image: &str) -> Result<PathBuf, Da
 
 /// Every mask is whole and of its camera's image size (when that is known).
 pub(super) fn check_masks(
-    inside: &Inside,
+    inside: &Folder,
     masks: &[Option<Vec<Option<PathBuf>>>],
     sizes: &[Option<Size>],
     ck: &mut Checker,

@@ -22,9 +22,10 @@ pub use poses::{pose_files, read_pose_file};
 
 use self::annots::{FramePaths, RawCamera};
 use self::check::Checker;
-use self::image_files::{Inside, MaskRule};
+use self::image_files::MaskRule;
 use crate::error::DataError;
 use crate::formats;
+use crate::paths::Folder;
 use crate::subject::{check_body_size, DatasetKind, FrameRecord, PosedVertices, Subject};
 
 /// What a loader needs besides the dataset folder.
@@ -115,7 +116,7 @@ pub(crate) fn read(
     let Some(ims) = annots::read_image_lists(&annots, &annots_path, cameras_listed, ck)? else {
         return Ok(None);
     };
-    let inside = Inside::new(root);
+    let inside = Folder::new(root, "dataset folder");
     let mut sizes = None;
     let mut cameras = None;
     if let Some(raw) = &raw {

@@ -81,28 +81,62 @@ impl fmt::Display for MotionFormat {
     }
 }
 
+/// Which frames of a motion are wanted and at what rate ([`Motion::read_timed`]).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Timing {
+    /// The motion's frames per second where its format records none (EasyMocap and ZJU folders).
+    pub declared_fps: Option<f64>,
+    /// Output frames per second (default: the motion's own).
+    pub fps: Option<f64>,
+    /// Frames of the resampled motion.
+    pub frames: FrameRange,
+}
+
 impl Motion {
     /// Reads a motion, detecting its format: an `.npz` file (AMASS), a `.json` fit or a folder of them
     /// (EasyMocap; also a capture folder with `output-smpl-3d/smpl/`), an `.npy` pose file or a folder of
-    /// them (ZJU-MoCap `params/`). `person` picks an EasyMocap person by id (default: the lowest id).
+    /// them (ZJU-MoCap `params/`). `person` picks an EasyMocap person by id (default: the lowest).
     pub fn read(path: &Path, person: Option<i64>) -> Result<Self, DataError> {
-        readers::read(path, person)
+        let mut opened = readers::open(path, person)?;
+        let all = 0..opened.len();
+        opened.read(all)
+    }
+
+    /// Reads the motion at `path` resampled to `timing.fps` and cut to `timing.frames` — the same frames
+    /// as [`Motion::read`], [`Motion::resampled`] and [`Motion::select`] give — reading only the recorded
+    /// frames those need: a few frames of a long motion cost the memory of a few frames. The result
+    /// records the output rate.
+    pub fn read_timed(
+        path: &Path,
+        person: Option<i64>,
+        timing: &Timing,
+    ) -> Result<Self, DataError> {
+        let mut opened = readers::open(path, person)?;
+        let source = opened.source().to_path_buf();
+        let from = rate(opened.fps(), timing.declared_fps, &source, opened.format())?;
+        let to = timing.fps.unwrap_or(from);
+        let count = resampled_count(opened.len(), from, to, &source)?;
+        let wanted = timing.frames.bounds(count, &source)?;
+        let last = wanted.start + (wanted.len() - 1) / timing.frames.step * timing.frames.step;
+        let time = |i: usize| i as f64 * from / to;
+        let first_row = time(wanted.start).floor() as usize;
+        let rows = first_row..(time(last).floor() as usize + 2).min(opened.len());
+        let part = opened.read(rows)?;
+        let frames = wanted
+            .step_by(timing.frames.step)
+            .map(|i| part.frame_at(time(i), first_row))
+            .collect();
+        Ok(Motion {
+            fps: Some(to),
+            frames,
+            ..part
+        })
     }
 
     /// Frames per second, with `declared` standing in where the file records none; errors when neither
     /// gives a positive finite rate.
     pub fn rate(&self, declared: Option<f64>) -> Result<f64, DataError> {
-        let rate = self.fps.or(declared).ok_or_else(|| {
-            DataError::invalid(
-                &self.source,
-                format!(
-                    "{} record no frame rate; give the motion's rate (--motion-fps)",
-                    self.format
-                ),
-            )
-        })?;
-        check_rate(rate, &self.source, "the frame rate")?;
-        Ok(rate)
+        rate(self.fps, declared, &self.source, self.format)
     }
 
     /// The motion resampled from `from` to `to` frames per second: frame `i` at time `i / to`, joint
@@ -110,32 +144,9 @@ impl Motion {
     /// on a recorded frame are copied exactly.
     /// At most [`MAX_MOTION_FRAMES`] frames come out: the count is checked before any is made.
     pub fn resampled(&self, from: f64, to: f64) -> Result<Motion, DataError> {
-        check_rate(from, &self.source, "the frame rate")?;
-        check_rate(to, &self.source, "the output frame rate (--fps)")?;
-        let last = self.frames.len().saturating_sub(1) as f64;
-        let count = (last * to / from + 1e-9).floor() + 1.0;
-        if !(count <= MAX_MOTION_FRAMES as f64) {
-            return Err(DataError::invalid(
-                &self.source,
-                format!(
-                    "resampling its {} frames from {from} to {to} frames per second makes {count:.3e} \
-                     frames; at most {MAX_MOTION_FRAMES} are allowed (is its frame rate {from} right? \
-                     --motion-fps gives the rate of a file that records none)",
-                    self.frames.len()
-                ),
-            ));
-        }
-        let count = count as usize;
+        let count = resampled_count(self.frames.len(), from, to, &self.source)?;
         let frames = (0..count)
-            .map(|i| {
-                let t = i as f64 * from / to;
-                let (k, w) = (t.floor() as usize, t - t.floor());
-                if w < 1e-9 || k + 1 >= self.frames.len() {
-                    self.frames[k.min(self.frames.len() - 1)].clone()
-                } else {
-                    self.frames[k].lerp(&self.frames[k + 1], w)
-                }
-            })
+            .map(|i| self.frame_at(i as f64 * from / to, 0))
             .collect();
         Ok(Motion {
             fps: Some(to),
@@ -144,18 +155,22 @@ impl Motion {
         })
     }
 
+    /// The frame at time `t` (in recorded frames) of a motion whose recorded frames start at `first`:
+    /// a copy where `t` falls on a recorded frame (or past the last), else the two around it blended.
+    fn frame_at(&self, t: f64, first: usize) -> MotionFrame {
+        let (k, w) = (t.floor() as usize - first, t - t.floor());
+        if w < 1e-9 || k + 1 >= self.frames.len() {
+            self.frames[k.min(self.frames.len() - 1)].clone()
+        } else {
+            self.frames[k].lerp(&self.frames[k + 1], w)
+        }
+    }
+
     /// The frames of `range`.
     pub fn select(&self, range: FrameRange) -> Result<Motion, DataError> {
-        let n = self.frames.len();
-        let end = range.end.unwrap_or(n);
-        if range.start >= n || end > n || range.start >= end {
-            return Err(DataError::invalid(
-                &self.source,
-                format!("frame range {range} is outside the motion's {n} frames (0:{n})"),
-            ));
-        }
+        let wanted = range.bounds(self.frames.len(), &self.source)?;
         Ok(Motion {
-            frames: self.frames[range.start..end]
+            frames: self.frames[wanted]
                 .iter()
                 .step_by(range.step)
                 .cloned()
@@ -163,6 +178,44 @@ impl Motion {
             ..self.clone()
         })
     }
+}
+
+/// A motion's frames per second: `recorded`, else `declared`; an error naming `source` when neither is a
+/// positive finite rate.
+fn rate(
+    recorded: Option<f64>,
+    declared: Option<f64>,
+    source: &Path,
+    format: MotionFormat,
+) -> Result<f64, DataError> {
+    let rate = recorded.or(declared).ok_or_else(|| {
+        DataError::invalid(
+            source,
+            format!("{format} record no frame rate; give the motion's rate (--motion-fps)"),
+        )
+    })?;
+    check_rate(rate, source, "the frame rate")?;
+    Ok(rate)
+}
+
+/// Frames a motion of `recorded` frames has resampled from `from` to `to` frames per second (the last
+/// recorded frame's time included); at most [`MAX_MOTION_FRAMES`], else an error naming `source`.
+fn resampled_count(recorded: usize, from: f64, to: f64, source: &Path) -> Result<usize, DataError> {
+    check_rate(from, source, "the frame rate")?;
+    check_rate(to, source, "the output frame rate (--fps)")?;
+    let last = recorded.saturating_sub(1) as f64;
+    let count = (last * to / from + 1e-9).floor() + 1.0;
+    if !(count <= MAX_MOTION_FRAMES as f64) {
+        return Err(DataError::invalid(
+            source,
+            format!(
+                "resampling its {recorded} frames from {from} to {to} frames per second makes {count:.3e} \
+                 frames; at most {MAX_MOTION_FRAMES} are allowed (is its frame rate {from} right? \
+                 --motion-fps gives the rate of a file that records none)"
+            ),
+        ));
+    }
+    Ok(count as usize)
 }
 
 impl MotionFrame {
@@ -195,10 +248,10 @@ impl MotionFrame {
     }
 }
 
-/// Refuses a rate that is not a positive finite number.
 /// Most frames a resampled motion may have (over nine hours at 30 frames per second).
 pub const MAX_MOTION_FRAMES: usize = 1_000_000;
 
+/// Refuses a rate that is not a positive finite number.
 fn check_rate(rate: f64, source: &Path, what: &str) -> Result<(), DataError> {
     if rate.is_finite() && rate > 0.0 {
         Ok(())
@@ -227,6 +280,19 @@ impl FrameRange {
         end: None,
         step: 1,
     };
+
+    /// The frames `start..end` of a motion of `n` frames (`source`), or an error when the range reaches
+    /// outside them or holds none.
+    fn bounds(&self, n: usize, source: &Path) -> Result<std::ops::Range<usize>, DataError> {
+        let end = self.end.unwrap_or(n);
+        if self.start >= n || end > n || self.start >= end {
+            return Err(DataError::invalid(
+                source,
+                format!("frame range {self} is outside the motion's {n} frames (0:{n})"),
+            ));
+        }
+        Ok(self.start..end)
+    }
 }
 
 impl fmt::Display for FrameRange {

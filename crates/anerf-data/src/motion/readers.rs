@@ -1,6 +1,9 @@
-//! The motion file readers behind [`super::Motion::read`]; every value is checked for its shape and
+//! The motion file readers behind [`super::Motion::read`]: a motion is first opened (its frame count
+//! and rate known, its layout checked), then the frames wanted are read ([`Opened::read`]), so that a
+//! cut of a long motion reads only the frames it needs. Every value is checked for its shape and
 //! finiteness, and errors name the file and the key.
 
+use std::ops::Range;
 use std::path::{Path, PathBuf};
 
 use glam::DVec3;
@@ -8,29 +11,63 @@ use glam::DVec3;
 use super::{Motion, MotionFormat, MotionFrame, Root};
 use crate::error::DataError;
 use crate::formats::npz::{MemberKind, Npz};
-use crate::loaders::arrays::{finite, shape_text};
+use crate::loaders::arrays::{check_shape, finite, shape_text};
 use crate::loaders::easymocap::fits::read_fit_file;
 use crate::loaders::poses::{numbered_files, read_pose};
 
-/// Detects the format of `path` and reads it.
-pub(super) fn read(path: &Path, person: Option<i64>) -> Result<Motion, DataError> {
+/// A motion file or folder opened: its layout checked, its frames not read yet.
+pub(super) enum Opened {
+    Amass(Amass),
+    /// EasyMocap fit files in frame order, and the person asked for.
+    EasyMocap {
+        source: PathBuf,
+        files: Vec<PathBuf>,
+        person: Option<i64>,
+    },
+    /// ZJU-MoCap pose files in numeric order.
+    Zju {
+        source: PathBuf,
+        files: Vec<PathBuf>,
+    },
+}
+
+/// Detects the format of `path` and opens it.
+pub(super) fn open(path: &Path, person: Option<i64>) -> Result<Opened, DataError> {
+    let files = |source: &Path, files: Vec<PathBuf>, easymocap: bool| {
+        let source = source.to_path_buf();
+        if files.is_empty() {
+            return Err(DataError::Missing {
+                path: source,
+                what: "a motion's frames (no numbered files)".into(),
+            });
+        }
+        Ok(if easymocap {
+            Opened::EasyMocap {
+                source,
+                files,
+                person,
+            }
+        } else {
+            Opened::Zju { source, files }
+        })
+    };
     if path.is_dir() {
         for fits in ["output-smpl-3d/smpl", "output/smpl"] {
-            if path.join(fits).is_dir() {
-                return read_easymocap(&path.join(fits), person);
+            let dir = path.join(fits);
+            if dir.is_dir() {
+                return files(&dir, numbered_files(&dir, "json")?, true);
             }
         }
-        let has =
-            |ext: &str| -> Result<bool, DataError> { Ok(!numbered_files(path, ext)?.is_empty()) };
-        return match (has("json")?, has("npy")?) {
-            (true, false) => read_easymocap(path, person),
-            (false, true) => read_zju(path),
-            (true, true) => Err(DataError::invalid(
+        let (json, npy) = (numbered_files(path, "json")?, numbered_files(path, "npy")?);
+        return match (json.is_empty(), npy.is_empty()) {
+            (false, true) => files(path, json, true),
+            (true, false) => files(path, npy, false),
+            (false, false) => Err(DataError::invalid(
                 path,
                 "holds both .json and .npy files; expected EasyMocap fits (.json) or ZJU-MoCap pose \
                  files (.npy), not both",
             )),
-            (false, false) => Err(DataError::Missing {
+            (true, true) => Err(DataError::Missing {
                 path: path.to_path_buf(),
                 what: "a motion: EasyMocap fits (<frame>.json) or ZJU-MoCap pose files (<i>.npy)".into(),
             }),
@@ -44,9 +81,9 @@ pub(super) fn read(path: &Path, person: Option<i64>) -> Result<Motion, DataError
         });
     }
     match path.extension().and_then(|e| e.to_str()).unwrap_or("") {
-        "npz" => read_amass(path),
-        "json" => read_easymocap_files(path, &[path.to_path_buf()], person),
-        "npy" => read_zju_files(path, &[path.to_path_buf()]),
+        "npz" => Ok(Opened::Amass(Amass::open(path)?)),
+        "json" => files(path, vec![path.to_path_buf()], true),
+        "npy" => files(path, vec![path.to_path_buf()], false),
         other => Err(DataError::invalid(
             path,
             format!(
@@ -57,115 +94,216 @@ pub(super) fn read(path: &Path, person: Option<i64>) -> Result<Motion, DataError
     }
 }
 
-/// An AMASS-style `.npz`: `poses` (T × 72, 156, 162 or 165) and `trans` (T × 3) in the standard SMPL root
-/// convention, `mocap_framerate` (SMPL+H) or `mocap_frame_rate` (SMPL-X); SMPL-X files' `root_orient`
-/// (T × 3) and `pose_body` (T × 63) take the place of the body part of `poses` where present.
-fn read_amass(path: &Path) -> Result<Motion, DataError> {
-    let mut npz = Npz::open(path)?;
-    let listed = listing(&npz);
-    let layout = || {
-        format!(
-            "an AMASS motion has 'poses' (T × 156 for SMPL+H, 162 or 165 for SMPL-X, 72 for SMPL) or \
-             'root_orient' + 'pose_body' (SMPL-X), 'trans' (T × 3) and 'mocap_framerate' or \
-             'mocap_frame_rate'; this file has {listed}"
-        )
-    };
-    let has = |npz: &Npz, key: &str| npz.kind(key).is_some();
-    let split = has(&npz, "root_orient") && has(&npz, "pose_body");
-    if !(has(&npz, "trans") && (has(&npz, "poses") || split)) {
-        return Err(DataError::invalid(path, layout()));
-    }
-    let rate_key = ["mocap_framerate", "mocap_frame_rate"]
-        .into_iter()
-        .find(|k| has(&npz, k))
-        .ok_or_else(|| DataError::invalid(path, format!("records no frame rate: {}", layout())))?;
-    let trans = numeric(&mut npz, path, "trans")?;
-    let t = trans.shape().first().copied().unwrap_or(0);
-    let trans = finite(&trans, path, "trans", &[Some(t), Some(3)])?;
-    if t == 0 {
-        return Err(DataError::invalid(path, "'trans' has no frames"));
-    }
-    let rate = numeric(&mut npz, path, rate_key)?;
-    let rate = match finite(&rate, path, rate_key, &vec![Some(1); rate.shape().len()])?[..] {
-        [r] => r,
-        _ => unreachable!("a shape of ones holds one value"),
-    };
-    super::check_rate(rate, path, &format!("'{rate_key}'"))?;
-    let poses = if has(&npz, "poses") {
-        let p = numeric(&mut npz, path, "poses")?;
-        let &[_, width] = p.shape() else {
-            return Err(DataError::invalid(
-                path,
-                format!(
-                    "'poses' has shape {}; expected (T, 72, 156, 162 or 165) with T = {t} frames like \
-                     'trans'",
-                    shape_text(p.shape())
-                ),
-            ));
-        };
-        Some((finite(&p, path, "poses", &[Some(t), Some(width)])?, width))
-    } else {
-        None
-    };
-    let (mut values, width) = match &poses {
-        Some((v, w)) => (v.clone(), *w),
-        None => (vec![0.0; t * 66], 66),
-    };
-    let format = match (width, split || rate_key == "mocap_frame_rate") {
-        (72, false) => MotionFormat::AmassSmpl,
-        (156, false) => MotionFormat::AmassSmplh,
-        (66 | 162 | 165, true) => MotionFormat::AmassSmplx,
-        _ => {
-            return Err(DataError::invalid(
-                path,
-                format!(
-                "'poses' has {width} values a frame with '{rate_key}', which fits no known body \
-                     model (SMPL+H: 156 with mocap_framerate; SMPL-X: 162 or 165 with \
-                     mocap_frame_rate; SMPL: 72)"
-            ),
-            ))
-        }
-    };
-    if split {
-        let root = finite(
-            &numeric(&mut npz, path, "root_orient")?,
-            path,
-            "root_orient",
-            &[Some(t), Some(3)],
-        )?;
-        let body = finite(
-            &numeric(&mut npz, path, "pose_body")?,
-            path,
-            "pose_body",
-            &[Some(t), Some(63)],
-        )?;
-        for f in 0..t {
-            values[f * width..f * width + 3].copy_from_slice(&root[f * 3..f * 3 + 3]);
-            values[f * width + 3..f * width + 66].copy_from_slice(&body[f * 63..f * 63 + 63]);
+impl Opened {
+    /// Frames the motion records.
+    pub(super) fn len(&self) -> usize {
+        match self {
+            Opened::Amass(a) => a.frames,
+            Opened::EasyMocap { files, .. } | Opened::Zju { files, .. } => files.len(),
         }
     }
-    let frames = (0..t)
-        .map(|f| MotionFrame {
-            joints: vectors(&values[f * width..(f + 1) * width]),
-            root: Root::Standard {
-                trans: DVec3::from_slice(&trans[f * 3..f * 3 + 3]),
-            },
-        })
-        .collect();
-    Ok(Motion {
-        source: path.to_path_buf(),
-        format,
-        fps: Some(rate),
-        model_joints: width / 3,
-        frames,
-        up: Some(DVec3::Z),
-    })
+
+    /// Frames per second, where the format records it.
+    pub(super) fn fps(&self) -> Option<f64> {
+        match self {
+            Opened::Amass(a) => Some(a.rate),
+            Opened::EasyMocap { .. } | Opened::Zju { .. } => None,
+        }
+    }
+
+    pub(super) fn format(&self) -> MotionFormat {
+        match self {
+            Opened::Amass(a) => a.format,
+            Opened::EasyMocap { .. } => MotionFormat::EasyMocap,
+            Opened::Zju { .. } => MotionFormat::ZjuParams,
+        }
+    }
+
+    pub(super) fn source(&self) -> &Path {
+        match self {
+            Opened::Amass(a) => &a.path,
+            Opened::EasyMocap { source, .. } | Opened::Zju { source, .. } => source,
+        }
+    }
+
+    /// Reads the recorded frames `rows` (within `0..len()`).
+    pub(super) fn read(&mut self, rows: Range<usize>) -> Result<Motion, DataError> {
+        match self {
+            Opened::Amass(a) => a.read(rows),
+            Opened::EasyMocap {
+                source,
+                files,
+                person,
+            } => {
+                let id = match *person {
+                    Some(id) => id,
+                    None => lowest_person(&files[0])?,
+                };
+                read_easymocap_files(source, &files[rows], id)
+            }
+            Opened::Zju { source, files } => read_zju_files(source, &files[rows]),
+        }
+    }
 }
 
-/// A numeric member of an archive, or an error saying what it holds instead.
-fn numeric(npz: &mut Npz, path: &Path, key: &str) -> Result<crate::formats::NdArray, DataError> {
+/// An AMASS-style `.npz`: `poses` (T × 72, 156, 162 or 165) and `trans` (T × 3) in the standard SMPL root
+/// convention, `mocap_framerate` (SMPL+H) or `mocap_frame_rate` (SMPL-X); SMPL-X files' `root_orient`
+/// (T × 3) and `pose_body` (T × 63) take the place of the body part of `poses` where present. Opening
+/// reads the members' headers and the rate; [`Amass::read`] reads the rows of a range of frames.
+pub(super) struct Amass {
+    path: PathBuf,
+    npz: Npz,
+    format: MotionFormat,
+    /// Frames (rows of every per-frame member).
+    frames: usize,
+    rate: f64,
+    /// Pose values a frame: `poses`' width, or 66 when only `root_orient` + `pose_body` are given.
+    width: usize,
+    has_poses: bool,
+    /// `root_orient` + `pose_body` override the body part of `poses`.
+    split: bool,
+}
+
+impl Amass {
+    fn open(path: &Path) -> Result<Self, DataError> {
+        let mut npz = Npz::open(path)?;
+        let listed = listing(&npz);
+        let layout = || {
+            format!(
+                "an AMASS motion has 'poses' (T × 156 for SMPL+H, 162 or 165 for SMPL-X, 72 for SMPL) \
+                 or 'root_orient' + 'pose_body' (SMPL-X), 'trans' (T × 3) and 'mocap_framerate' or \
+                 'mocap_frame_rate'; this file has {listed}"
+            )
+        };
+        let has = |npz: &Npz, key: &str| npz.kind(key).is_some();
+        let split = has(&npz, "root_orient") && has(&npz, "pose_body");
+        let has_poses = has(&npz, "poses");
+        if !(has(&npz, "trans") && (has_poses || split)) {
+            return Err(DataError::invalid(path, layout()));
+        }
+        let rate_key = ["mocap_framerate", "mocap_frame_rate"]
+            .into_iter()
+            .find(|k| has(&npz, k))
+            .ok_or_else(|| {
+                DataError::invalid(path, format!("records no frame rate: {}", layout()))
+            })?;
+        let trans = shape_of(&npz, path, "trans")?;
+        let frames = trans.first().copied().unwrap_or(0);
+        check_shape(&trans, path, "trans", &[Some(frames), Some(3)])?;
+        if frames == 0 {
+            return Err(DataError::invalid(path, "'trans' has no frames"));
+        }
+        let rate = shape_of(&npz, path, rate_key)?;
+        check_shape(&rate, path, rate_key, &vec![Some(1); rate.len()])?;
+        let rate = finite(
+            &npz.array(rate_key)?,
+            path,
+            rate_key,
+            &vec![Some(1); rate.len()],
+        )?[0];
+        super::check_rate(rate, path, &format!("'{rate_key}'"))?;
+        let width = if has_poses {
+            let poses = shape_of(&npz, path, "poses")?;
+            let &[_, width] = &poses[..] else {
+                return Err(DataError::invalid(
+                    path,
+                    format!(
+                        "'poses' has shape {}; expected (T, 72, 156, 162 or 165) with T = {frames} \
+                         frames like 'trans'",
+                        shape_text(&poses)
+                    ),
+                ));
+            };
+            check_shape(&poses, path, "poses", &[Some(frames), Some(width)])?;
+            width
+        } else {
+            66
+        };
+        let format = match (width, split || rate_key == "mocap_frame_rate") {
+            (72, false) => MotionFormat::AmassSmpl,
+            (156, false) => MotionFormat::AmassSmplh,
+            (66 | 162 | 165, true) => MotionFormat::AmassSmplx,
+            _ => {
+                return Err(DataError::invalid(
+                    path,
+                    format!(
+                        "'poses' has {width} values a frame with '{rate_key}', which fits no known body \
+                         model (SMPL+H: 156 with mocap_framerate; SMPL-X: 162 or 165 with \
+                         mocap_frame_rate; SMPL: 72)"
+                    ),
+                ))
+            }
+        };
+        if split {
+            for (key, values) in [("root_orient", 3), ("pose_body", 63)] {
+                check_shape(
+                    &shape_of(&npz, path, key)?,
+                    path,
+                    key,
+                    &[Some(frames), Some(values)],
+                )?;
+            }
+        }
+        Ok(Self {
+            path: path.to_path_buf(),
+            npz,
+            format,
+            frames,
+            rate,
+            width,
+            has_poses,
+            split,
+        })
+    }
+
+    /// Frames `rows`, reading only those rows of each member.
+    fn read(&mut self, rows: Range<usize>) -> Result<Motion, DataError> {
+        let (path, n, width) = (self.path.clone(), rows.len(), self.width);
+        let mut member = |key: &str, values: usize| -> Result<Vec<f64>, DataError> {
+            finite(
+                &self.npz.rows(key, rows.clone())?,
+                &path,
+                key,
+                &[Some(n), Some(values)],
+            )
+        };
+        let trans = member("trans", 3)?;
+        let mut values = if self.has_poses {
+            member("poses", width)?
+        } else {
+            vec![0.0; n * width]
+        };
+        if self.split {
+            let root = member("root_orient", 3)?;
+            let body = member("pose_body", 63)?;
+            for f in 0..n {
+                values[f * width..f * width + 3].copy_from_slice(&root[f * 3..f * 3 + 3]);
+                values[f * width + 3..f * width + 66].copy_from_slice(&body[f * 63..f * 63 + 63]);
+            }
+        }
+        let frames = (0..n)
+            .map(|f| MotionFrame {
+                joints: vectors(&values[f * width..(f + 1) * width]),
+                root: Root::Standard {
+                    trans: DVec3::from_slice(&trans[f * 3..f * 3 + 3]),
+                },
+            })
+            .collect();
+        Ok(Motion {
+            source: path,
+            format: self.format,
+            fps: Some(self.rate),
+            model_joints: width / 3,
+            frames,
+            up: Some(DVec3::Z),
+        })
+    }
+}
+
+/// The shape of the numeric member `key`, or an error saying what it holds instead.
+fn shape_of(npz: &Npz, path: &Path, key: &str) -> Result<Vec<usize>, DataError> {
     match npz.kind(key) {
-        Some(MemberKind::Numeric { .. }) => npz.array(key),
+        Some(MemberKind::Numeric { shape, .. }) => Ok(shape.clone()),
         Some(MemberKind::Other(kind)) => Err(DataError::invalid(
             path,
             format!("'{key}' holds {kind}; expected a numeric array (object arrays are never unpickled)"),
@@ -195,22 +333,16 @@ fn vectors(values: &[f64]) -> Vec<DVec3> {
     values.chunks_exact(3).map(DVec3::from_slice).collect()
 }
 
-/// A folder of EasyMocap fits, in frame order.
-fn read_easymocap(dir: &Path, person: Option<i64>) -> Result<Motion, DataError> {
-    read_easymocap_files(dir, &numbered_files(dir, "json")?, person)
+/// The lowest person id in the EasyMocap fit `file` (the person a motion follows by default).
+fn lowest_person(file: &Path) -> Result<i64, DataError> {
+    Ok(read_fit_file(file)?.iter().map(|p| p.id).min().unwrap_or(0))
 }
 
-/// EasyMocap fit files: each frame's person `person` (default: the lowest id of the first file).
-fn read_easymocap_files(
-    source: &Path,
-    files: &[PathBuf],
-    person: Option<i64>,
-) -> Result<Motion, DataError> {
-    let mut chosen = person;
+/// EasyMocap fit files: each frame's person `id`.
+fn read_easymocap_files(source: &Path, files: &[PathBuf], id: i64) -> Result<Motion, DataError> {
     let mut frames = Vec::with_capacity(files.len());
     for file in files {
         let people = read_fit_file(file)?;
-        let id = *chosen.get_or_insert_with(|| people.iter().map(|p| p.id).min().unwrap_or(0));
         let fit = people.iter().find(|p| p.id == id).ok_or_else(|| {
             DataError::invalid(
                 file,
@@ -234,11 +366,7 @@ fn read_easymocap_files(
     same_joints(frames, source, MotionFormat::EasyMocap)
 }
 
-/// A folder of ZJU-MoCap pose files, in numeric order.
-fn read_zju(dir: &Path) -> Result<Motion, DataError> {
-    read_zju_files(dir, &numbered_files(dir, "npy")?)
-}
-
+/// ZJU-MoCap pose files, in the order given.
 fn read_zju_files(source: &Path, files: &[PathBuf]) -> Result<Motion, DataError> {
     let frames = files
         .iter()

@@ -3,6 +3,7 @@
 
 use std::path::Path;
 
+use anerf_data::paths::{Folder, Located};
 use percent_encoding::percent_decode_str;
 
 use super::assets;
@@ -168,16 +169,12 @@ impl std::fmt::Display for Outside {
 /// `path` resolved, when it is a regular file inside the run folder: the one rule for every file the
 /// viewer reads or sends, so that a link inside the run never serves what lies outside it.
 pub fn inside_run(run: &RunDir, path: &Path) -> Result<std::path::PathBuf, Outside> {
-    let (Ok(root), Ok(file)) = (run.root.canonicalize(), path.canonicalize()) else {
-        return Err(Outside::Missing);
-    };
-    if !file.starts_with(&root) {
-        return Err(Outside::LeadsOut);
+    match Folder::new(&run.root, "run folder").locate(path) {
+        Located::Inside(file) if file.is_file() => Ok(file),
+        Located::Inside(_) => Err(Outside::NotAFile),
+        Located::Outside(_) => Err(Outside::LeadsOut),
+        Located::Missing => Err(Outside::Missing),
     }
-    if !file.is_file() {
-        return Err(Outside::NotAFile);
-    }
-    Ok(file)
 }
 
 fn content_type(path: &Path) -> &'static str {

@@ -8,10 +8,10 @@ use glam::DVec3;
 
 use super::super::annots::RawCamera;
 use super::super::check::Checker;
-use super::super::image_files::Inside;
 use crate::error::DataError;
 use crate::formats::opencv_yaml::{FileStorage, Matrix};
 use crate::paths;
+use crate::paths::Folder;
 use crate::smpl::rodrigues;
 
 /// Distortion coefficient counts OpenCV uses (k1 k2 p1 p2 [k3 [k4 k5 k6 [s1..s4 [τx τy]]]]).
@@ -23,7 +23,7 @@ pub(super) fn read_cameras(
     root: &Path,
     ck: &mut Checker,
 ) -> Result<Option<(Vec<String>, Vec<Option<RawCamera>>)>, DataError> {
-    let inside = Inside::new(root);
+    let inside = Folder::new(root, "dataset folder");
     let read = |name: &str| {
         let path = root.join(name);
         inside.check(&path).and_then(|()| FileStorage::read(&path))

@@ -24,9 +24,10 @@ use anerf_core::FrameId;
 use self::fits::{read_fit_file, PersonFit};
 use super::annots::FramePaths;
 use super::check::Checker;
-use super::image_files::{self, Inside, MaskRule};
+use super::image_files::{self, MaskRule};
 use super::{build_cameras, LoadOptions};
 use crate::error::DataError;
+use crate::paths::Folder;
 use crate::smpl::SmplModel;
 use crate::subject::{
     check_body_size, DatasetKind, FittedPose, FrameRecord, PosedVertices, Subject,
@@ -65,7 +66,7 @@ pub(super) fn read(
         }
     };
     let calibration = cameras::read_cameras(root, ck)?;
-    let inside = Inside::new(root);
+    let inside = Folder::new(root, "dataset folder");
     let mut frame_numbers = Vec::new();
     let mut cameras = None;
     let mut masks = Vec::new();
@@ -288,7 +289,7 @@ fn read_fits(
         }))?;
         return Ok(None);
     };
-    let inside = Inside::new(root);
+    let inside = Folder::new(root, "dataset folder");
     let mut people = Vec::with_capacity(frames.len());
     for &n in frames {
         let path = folder.join(format!("{n:06}.json"));
