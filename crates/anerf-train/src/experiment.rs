@@ -4,7 +4,7 @@
 use std::collections::HashMap;
 
 use anerf_core::geometry::skinning::BoneMatrices;
-use anerf_core::geometry::Aabb;
+use anerf_core::geometry::{Aabb, CanonicalPose, Pose, PoseBasis};
 use anerf_core::model::{AnimatableNerf, CanonicalInputs, FrameCode, FrameInputs, ModelSizes};
 use anerf_core::{FrameId, ViewId};
 use anerf_data::prepare::{FrameSelection, NearestMethod};
@@ -264,16 +264,40 @@ impl Experiment {
                 .prepared
                 .frame(id)
                 .with_context(|| format!("{id} was not prepared"))?;
+            let refines = self.config.model.pose_refinement.enabled;
+            let basis = (refines && matches!(code, FrameCode::Training(_))).then(|| {
+                PoseBasis::new(
+                    &self.prepared.skeleton,
+                    &frame.pose,
+                    CanonicalPose::TPose,
+                    &device,
+                )
+            });
             let inputs = FrameInputs {
                 bones: BoneMatrices::new(&frame.bones, &device),
                 global: frame.pose.global,
                 volume: self.prepared.volume(id)?.to_tensor(&device),
                 code,
                 appearance,
+                basis,
             };
             self.frames.insert((replica, id), inputs);
         }
         Ok(self.frames[&(replica, id)].clone())
+    }
+
+    /// Frame `id`'s body pose as `model` renders it: the given fit, corrected by the model's pose
+    /// refinement where `id` is a training frame of a model that refines fits.
+    pub fn frame_pose(&self, model: &AnimatableNerf, id: FrameId) -> Result<Pose> {
+        let given = &self
+            .prepared
+            .frame(id)
+            .with_context(|| format!("{id} was not prepared"))?
+            .pose;
+        Ok(match (&model.pose, self.frame_code(id)?.0) {
+            (Some(refinement), FrameCode::Training(f)) => refinement.correction(f).apply(given),
+            _ => given.clone(),
+        })
     }
 
     /// World-space box of prepared frame `id` (metres).

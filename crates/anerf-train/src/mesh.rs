@@ -210,7 +210,7 @@ pub fn posed_mesh(
                 let p = world_to_pose(x, &global);
                 let prior = frame.volume.sample(p.clone()).weights;
                 let weights = model.frame_weights(p.clone(), prior, frame.code);
-                model.canonical_density(frame.bones.inverse(p, weights), canonical)
+                model.canonical_density(model.frame_bones(frame).inverse(p, weights), canonical)
             })
         },
     )

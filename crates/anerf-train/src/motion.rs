@@ -149,6 +149,7 @@ impl MotionClip {
                 volume: body.volume.to_tensor(device),
                 code: FrameCode::Novel(i),
                 appearance: exp.novel_appearance(),
+                basis: None,
             },
             bounds: body.bounds,
         })

@@ -4,6 +4,7 @@
 
 pub mod aabb;
 pub mod camera;
+pub mod kinematics;
 pub mod lbs;
 pub mod rotation;
 pub mod skeleton;
@@ -12,6 +13,7 @@ pub mod volume;
 
 pub use aabb::{Aabb, RayHit};
 pub use camera::{Camera, Distortion, PixelConvention, Ray};
+pub use kinematics::{PoseBasis, PoseCorrection};
 pub use lbs::{
     blend_transforms, forward_lbs_point, forward_lbs_points, inverse_lbs_point, validate_weights,
 };

@@ -32,6 +32,12 @@ impl BoneMatrices {
         }
     }
 
+    /// Wraps bone rows `[K, 12]` already on a device (e.g. computed, with gradients, from refined poses).
+    pub fn from_rows(rows: Tensor<2>) -> Self {
+        assert_eq!(rows.dims()[1], 12, "bone rows are [K, 12]");
+        Self { rows }
+    }
+
     /// Number of joints `K`.
     pub fn num_joints(&self) -> usize {
         self.rows.dims()[0]
@@ -64,7 +70,8 @@ impl BoneMatrices {
     /// box check zeroes its density) instead of becoming NaN; no gradient flows through the replaced value.
     ///
     /// On the flex and CubeCL (GPU) backends this is one fused kernel ([`crate::kernels::warp::inverse_skinning`];
-    /// the bones get no gradient), elsewhere [`Self::inverse_reference`].
+    /// the bones' gradient, where they are tracked, from the points' one), elsewhere
+    /// [`Self::inverse_reference`].
     pub fn inverse(&self, points: Tensor<2>, weights: Tensor<2>) -> Tensor<2> {
         if crate::kernels::available(&points.device()) {
             crate::kernels::warp::inverse_skinning(points, weights, self.rows())

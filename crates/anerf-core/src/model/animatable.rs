@@ -9,12 +9,13 @@ use rayon::prelude::*;
 use super::blend::BlendWeightField;
 use super::nerf::CanonicalNerf;
 use super::occupancy::OccupancyGrid;
+use super::pose_refinement::PoseRefinement;
 use super::{ConsistencyLoss, ModelConfig, ViewDirection};
 use crate::geometry::skinning::{
     points_tensor, world_to_pose, world_to_pose_directions, BoneMatrices,
 };
 use crate::geometry::VolumeTensor;
-use crate::geometry::{Aabb, GlobalTransform};
+use crate::geometry::{Aabb, GlobalTransform, PoseBasis};
 use crate::render::{
     blend_consistency, blend_consistency_parts, composite, stratified_depths, ConsistencyParts,
     RayBatch,
@@ -51,6 +52,9 @@ pub struct FrameInputs {
     pub code: FrameCode,
     /// Row of the appearance codes ℓ.
     pub appearance: usize,
+    /// The frame's given fit for corrected bones, where the model refines training frames' fits
+    /// ([`AnimatableNerf::pose`]); `None` renders with `bones` as given.
+    pub basis: Option<PoseBasis>,
 }
 
 /// The canonical body: its blend-weight volume and its box (T-pose vertices ± padding, metres).
@@ -186,6 +190,8 @@ pub struct AnimatableNerf {
     pub nerf: CanonicalNerf,
     pub blend: BlendWeightField,
     pub novel_blend: Option<BlendWeightField>,
+    /// Corrections of the training frames' body fits (with `pose_refinement.enabled`).
+    pub pose: Option<PoseRefinement>,
     #[module(skip)]
     config: ModelConfig,
     /// Occupied cells of the canonical box, when the config asks for a grid and it has been built.
@@ -206,6 +212,14 @@ impl AnimatableNerf {
                 device,
             ),
             novel_blend: None,
+            pose: config.pose_refinement.enabled.then(|| {
+                PoseRefinement::new(
+                    config.pose_refinement,
+                    sizes.training_frames,
+                    sizes.joints,
+                    device,
+                )
+            }),
             config: config.clone(),
             occupancy: None,
         }
@@ -269,8 +283,31 @@ impl AnimatableNerf {
         Self {
             nerf: self.nerf.no_grad(),
             blend: self.blend.no_grad(),
+            pose: self.pose.map(Module::no_grad),
             ..self
         }
+    }
+
+    /// The bones `frame` is rendered with: corrected by the refined fit where the model refines it
+    /// ([`Self::refined`]), else as given.
+    pub fn frame_bones(&self, frame: &FrameInputs) -> BoneMatrices {
+        self.refined(frame)
+            .map_or_else(|| frame.bones.clone(), |f| f.bones)
+    }
+
+    /// `frame` with its bones corrected by the refined fit when it is a training frame of a model that
+    /// refines fits and carries its given fit ([`FrameInputs::basis`]); `None` otherwise.
+    fn refined(&self, frame: &FrameInputs) -> Option<FrameInputs> {
+        let (Some(pose), Some(basis), FrameCode::Training(f)) =
+            (&self.pose, &frame.basis, frame.code)
+        else {
+            return None;
+        };
+        let c = pose.frame(f);
+        Some(FrameInputs {
+            bones: basis.bones(c.joints, c.rotation, c.translation),
+            ..frame.clone()
+        })
     }
 
     /// The field and row that give frame weights for `code`.
@@ -516,6 +553,8 @@ impl AnimatableNerf {
         jitter: Option<Tensor<2>>,
         with_consistency: bool,
     ) -> RenderOutput {
+        let refined = self.refined(frame);
+        let frame = refined.as_ref().unwrap_or(frame);
         let device = rays.origins.device();
         let s = self.config.samples_per_ray;
         let r = rays.len();

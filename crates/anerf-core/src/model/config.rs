@@ -4,6 +4,7 @@ use serde::{Deserialize, Serialize};
 
 use super::hash_grid::HashGridConfig;
 use super::occupancy::OccupancyConfig;
+use super::pose_refinement::PoseRefinementConfig;
 
 /// How the neural blend weight field combines its MLP output `F` with the body-model prior `w^s`.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
@@ -115,6 +116,9 @@ pub struct ModelConfig {
     /// An occupancy grid over the canonical box that lets samples in empty space skip the canonical NeRF.
     #[serde(default)]
     pub occupancy: Option<OccupancyConfig>,
+    /// Per-frame corrections of the training frames' body fits, learned in stage 1 (off by default).
+    #[serde(default)]
+    pub pose_refinement: PoseRefinementConfig,
 }
 
 fn default_true() -> bool {
@@ -180,6 +184,7 @@ impl ModelPreset {
             view_direction: ViewDirection::World,
             encoding: PointEncoding::Frequency,
             occupancy: None,
+            pose_refinement: PoseRefinementConfig::default(),
         };
         match self {
             ModelPreset::Paper => base,
@@ -332,6 +337,7 @@ impl ModelConfig {
             nerf.validate("model.encoding.nerf")?;
             blend.validate("model.encoding.blend")?;
         }
+        self.pose_refinement.validate()?;
         if !(self.cull_distance.is_finite() && self.cull_distance > 0.0) {
             return Err(format!(
                 "model.cull_distance = {}: expected a positive distance in metres",

@@ -9,6 +9,7 @@ pub mod march;
 pub mod mlp;
 pub mod nerf;
 pub mod occupancy;
+pub mod pose_refinement;
 pub mod stage2;
 
 pub use animatable::{
@@ -24,5 +25,6 @@ pub use encoding::PositionalEncoding;
 pub use march::MarchedRays;
 pub use nerf::CanonicalNerf;
 pub use occupancy::{OccupancyConfig, OccupancyGrid};
+pub use pose_refinement::{PoseRefinement, PoseRefinementConfig};
 #[cfg(test)]
 mod tests;

@@ -12,7 +12,7 @@ use crate::device::cpu_device;
 use crate::geometry::skinning::{points_tensor, BoneMatrices};
 use crate::geometry::BlendWeightVolume;
 use crate::geometry::{
-    inverse_lbs_point, Aabb, Camera, CanonicalPose, GlobalTransform, Pose, Skeleton,
+    inverse_lbs_point, Aabb, Camera, CanonicalPose, GlobalTransform, Pose, PoseBasis, Skeleton,
 };
 use crate::render::{color_mse, composite, stratified_depths, HostRays, RayBatch};
 use crate::tensor::{from_rows, parameter_gradients, to_host};
@@ -52,6 +52,8 @@ pub(crate) struct Scene {
     pub host_rays: HostRays,
     pub host_volume: BlendWeightVolume,
     pub bones: crate::geometry::BoneTransforms,
+    /// The frame's given fit, for models that refine it.
+    pub basis: PoseBasis,
 }
 
 fn scene(device: &Device, code: FrameCode) -> Scene {
@@ -86,6 +88,7 @@ fn scene(device: &Device, code: FrameCode) -> Scene {
         volume: host_volume.to_tensor(device),
         code,
         appearance: 1,
+        basis: None,
     };
     let canonical = CanonicalInputs {
         volume: host_volume.to_tensor(device),
@@ -118,6 +121,7 @@ fn scene(device: &Device, code: FrameCode) -> Scene {
         host_rays: host,
         host_volume,
         bones,
+        basis: PoseBasis::new(&skeleton, &pose, CanonicalPose::TPose, device),
     }
 }
 
@@ -897,4 +901,73 @@ fn the_novel_pose_field_starts_at_the_prior() {
         .all(|(a, b)| (a - b).abs() < 1e-6));
     let (_, training) = model.frame_blend(p, prior, FrameCode::Training(1));
     assert!(to_host(training.unwrap()).iter().any(|&f| f.abs() > 1e-3));
+}
+
+/// With pose refinement on, zero corrections render exactly what the given fit renders (the corrections
+/// start there), and the colours' gradient reaches the frame's corrections, matching central differences;
+/// the other frames' corrections get none.
+#[test]
+fn pose_corrections_start_at_the_given_render_and_learn_from_the_colours() {
+    let device = cpu_device().autodiff();
+    device.seed(6);
+    let s = scene(&device, FrameCode::Training(1));
+    let config = ModelConfig {
+        pose_refinement: PoseRefinementConfig {
+            enabled: true,
+            ..Default::default()
+        },
+        ..ModelPreset::Tiny.config()
+    };
+    let model = tiny_model_with(config, &device);
+    let refined = FrameInputs {
+        basis: Some(s.basis.clone()),
+        ..s.frame.clone()
+    };
+    // Without a basis the model renders the given bones, as a model without refinement does.
+    let given = model.render(&s.rays, &s.frame, &s.canonical, None, false);
+    let corrected = model.render(&s.rays, &refined, &s.canonical, None, false);
+    assert_eq!(to_host(given.rgb), to_host(corrected.rgb));
+    assert_eq!(to_host(given.acc), to_host(corrected.acc));
+
+    let weights = Tensor::<2>::from_floats([[0.7, -0.4, 1.1]], &device);
+    let objective = |m: &AnimatableNerf| {
+        (m.render(&s.rays, &refined, &s.canonical, None, false).rgb * weights.clone()).sum()
+    };
+    let value = objective(&model);
+    let grads = GradientsParams::from_grads(value.backward(), &model);
+    let pose = model.pose.as_ref().unwrap();
+    let (joints, root) = (
+        to_host(grads.get::<2>(pose.joints.id).unwrap()),
+        to_host(grads.get::<2>(pose.root.id).unwrap()),
+    );
+    // Frame 1's rows only (4 joints × 3 values; 6 global values).
+    for (f, (j, r)) in joints.chunks(12).zip(root.chunks(6)).enumerate() {
+        let moved = j.iter().chain(r).any(|g| *g != 0.0);
+        assert_eq!(moved, f == 1, "frame {f}: joints {j:?}, global {r:?}");
+    }
+    let h = 1e-3f32;
+    for (id, index, analytic) in [
+        (pose.joints.id, 12 + 3 + 2, joints[12 + 3 + 2]),
+        (pose.joints.id, 12 + 6, joints[12 + 6]),
+        (pose.root.id, 6 + 1, root[6 + 1]),
+        (pose.root.id, 6 + 3, root[6 + 3]),
+    ] {
+        let eval = |delta| {
+            let nudged = model.clone().map(&mut Nudge {
+                target: id,
+                index,
+                delta,
+            });
+            to_host(objective(&nudged))[0] as f64
+        };
+        let fd = (eval(h) - eval(-h)) / (2.0 * h as f64);
+        assert!(
+            (fd - analytic as f64).abs() < 0.05 * fd.abs().max(analytic.abs() as f64) + 2e-3,
+            "parameter {index}: central difference {fd} vs autodiff {analytic}"
+        );
+        assert!(
+            analytic.abs() > 1e-3,
+            "parameter {index}: gradient {analytic}"
+        );
+    }
 }

@@ -69,14 +69,7 @@ pub fn export(run_path: &Path, job: &ExportJob, options: &JobOptions) -> Result<
             let poses = exp
                 .train_frames
                 .iter()
-                .map(|&f| {
-                    Ok(exp
-                        .prepared
-                        .frame(f)
-                        .context("unprepared frame")?
-                        .pose
-                        .clone())
-                })
+                .map(|&f| exp.frame_pose(&model, f))
                 .collect::<Result<Vec<Pose>>>()?;
             ("training".to_string(), TRAINING_FPS, poses)
         }

@@ -3,6 +3,7 @@
 
 use std::path::{Path, PathBuf};
 
+use anerf_core::geometry::CanonicalPose;
 use anerf_core::model::AnimatableNerf;
 use anerf_core::FrameId;
 use anerf_data::visual_hull::VisualHull;
@@ -61,16 +62,14 @@ pub fn mesh(run_path: &Path, job: &MeshJob, options: &JobOptions) -> Result<Mesh
         posed: Vec::new(),
     };
     for &f in &job.frames {
-        let frame = exp
+        let pose = exp
+            .frame_pose(&model, FrameId(f))
+            .with_context(|| format!("frame {f} (--frames)"))?;
+        let bones = exp
             .prepared
-            .frame(FrameId(f))
-            .with_context(|| format!("frame {f} was not prepared (--frames)"))?;
-        let posed = crate::mesh::repose(
-            &cm.mesh.vertices,
-            &cm.weights,
-            &frame.bones,
-            &frame.pose.global,
-        )?;
+            .skeleton
+            .bone_transforms(&pose, CanonicalPose::TPose)?;
+        let posed = crate::mesh::repose(&cm.mesh.vertices, &cm.weights, &bones, &pose.global)?;
         let view = MeshView::new(&posed, &cm.mesh.faces).with_colors(&cm.colors);
         let file = write_mesh(dir.join(format!("frame_{f:06}.ply")), &view)?;
         files.reposed.push((FrameId(f), file));

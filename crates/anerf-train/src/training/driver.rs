@@ -43,8 +43,16 @@ pub(super) trait Step {
     /// The loss of the next step, on the device, and its values for the log (`loss` on the host).
     fn loss(&mut self, model: &AnimatableNerf) -> Result<(Tensor<1>, StepValues)>;
     /// After the optimiser step that completed step `step`, on each copy of the model (replica `replica` of
-    /// a data-parallel fit; stage 1 refreshes its occupancy grid).
-    fn after_step(&mut self, _model: &mut AnimatableNerf, _replica: usize, _step: usize) {}
+    /// a data-parallel fit; stage 1 refreshes its occupancy grid and checks its pose refinement); an error
+    /// stops the fit without a checkpoint.
+    fn after_step(
+        &mut self,
+        _model: &mut AnimatableNerf,
+        _replica: usize,
+        _step: usize,
+    ) -> Result<()> {
+        Ok(())
+    }
     /// A held-out PSNR at `step`, when the stage validates.
     fn validate(&mut self, _model: &AnimatableNerf, _step: usize) -> Result<Option<f64>> {
         Ok(None)
@@ -218,7 +226,7 @@ pub(super) fn drive<S: Step>(
         let done = done + 1;
         step.counters().step = done;
         for (replica, model) in fit.models_mut().into_iter().enumerate() {
-            step.after_step(model, replica, done);
+            step.after_step(model, replica, done)?;
         }
         last_loss = values.loss;
         step.counters().window.add(values);

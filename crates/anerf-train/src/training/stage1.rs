@@ -3,7 +3,7 @@
 
 use std::sync::atomic::AtomicBool;
 
-use anerf_core::model::{AnimatableNerf, FrameInputs};
+use anerf_core::model::{AnimatableNerf, FrameCode, FrameInputs};
 use anerf_core::render::{psnr_from_mse, HostRays, RayBatch};
 use anerf_core::tensor::{from_rows, to_host};
 use anerf_core::{FrameId, ViewId};
@@ -141,8 +141,30 @@ impl Step for Stage1<'_> {
         whole_loss(self, model)
     }
 
-    fn after_step(&mut self, model: &mut AnimatableNerf, replica: usize, step: usize) {
+    /// Refreshes the occupancy grid; every [`POSE_CHECK_EVERY`] steps (and at the first), stops a pose
+    /// refinement whose corrections left their bounds or are not finite, naming the frame.
+    fn after_step(
+        &mut self,
+        model: &mut AnimatableNerf,
+        replica: usize,
+        step: usize,
+    ) -> Result<()> {
         model.update_occupancy(self.exp.canonical_on(replica), step);
+        if let (Some(pose), 0) = (&model.pose, replica) {
+            if step == 1 || step.is_multiple_of(POSE_CHECK_EVERY) {
+                if let Err(d) = pose.check() {
+                    bail!(
+                        "stage 1 stopped at step {step}: the pose refinement of training frame {} ({}) \
+                         diverged: {}; lower model.pose_refinement.rotation_scale or translation_scale, or \
+                         raise prior_weight (the last good checkpoint is kept)",
+                        d.frame,
+                        self.exp.train_frames[d.frame],
+                        d.what
+                    );
+                }
+            }
+        }
+        Ok(())
     }
 
     /// Renders a held-out view of a middle training frame, saves it and returns its protocol PSNR.
@@ -340,6 +362,10 @@ impl ShardedStep for Stage1<'_> {
             Some(b) => colour_loss + b.clone(),
             None => colour_loss,
         };
+        let loss = match self.pose_penalty(model, &batch.inputs[shard.index]) {
+            Some(penalty) => loss + penalty,
+            None => loss,
+        };
         // One transfer for the three logged values.
         let values = to_host(Tensor::cat(
             vec![
@@ -358,6 +384,25 @@ impl ShardedStep for Stage1<'_> {
             items: rays.len(),
         };
         Ok((loss, logged))
+    }
+}
+
+/// Steps between checks that the pose refinement stayed within its bounds.
+const POSE_CHECK_EVERY: usize = 100;
+
+impl Stage1<'_> {
+    /// The pose refinement's regulariser for the batch's frame (the same on every shard, so that the
+    /// shards' average is it); `None` without refinement.
+    fn pose_penalty(&self, model: &AnimatableNerf, inputs: &FrameInputs) -> Option<Tensor<1>> {
+        let (pose, FrameCode::Training(f)) = (model.pose.as_ref()?, inputs.code) else {
+            return None;
+        };
+        let frames = &self.exp.train_frames;
+        let given = |i: usize| self.exp.prepared.frame(frames[i]).map(|p| &p.pose);
+        let neighbours = (f > 0 && f + 1 < frames.len())
+            .then(|| Some([given(f - 1)?, given(f)?, given(f + 1)?]))
+            .flatten();
+        Some(pose.penalty(f, neighbours))
     }
 }
 

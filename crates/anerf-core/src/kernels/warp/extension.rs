@@ -165,18 +165,30 @@ pub(super) fn check_skinning(points: [usize; 2], weights: [usize; 2], bones: [us
     n
 }
 
-/// The backward step of [`FusedBackend::inverse_skinning`]; the state holds points, weights and bones.
+/// The backward step of [`FusedBackend::inverse_skinning`]; the state holds points, weights, bones and the
+/// output (the canonical points).
 #[derive(Debug)]
 struct InverseSkinningBackward;
 
-impl<B: FusedBackend> Backward<B, 2> for InverseSkinningBackward {
-    type State = (FloatTensor<B>, FloatTensor<B>, FloatTensor<B>);
+impl<B: FusedBackend> Backward<B, 3> for InverseSkinningBackward {
+    type State = (
+        FloatTensor<B>,
+        FloatTensor<B>,
+        FloatTensor<B>,
+        FloatTensor<B>,
+    );
 
-    fn backward(self, ops: Ops<Self::State, 2>, grads: &mut Gradients, _: &mut Checkpointer) {
-        let [points_node, weights_node] = ops.parents;
+    fn backward(self, ops: Ops<Self::State, 3>, grads: &mut Gradients, _: &mut Checkpointer) {
+        let [points_node, weights_node, bones_node] = ops.parents;
         let grad = grads.consume::<B>(&ops.node);
-        let (points, weights, bones) = ops.state;
-        let (grad_points, grad_weights) = B::inverse_skinning_grads(points, weights, bones, grad);
+        let (points, weights, bones, canonical) = ops.state;
+        let (grad_points, grad_weights) =
+            B::inverse_skinning_grads(points, weights.clone(), bones, grad);
+        if let Some(node) = bones_node {
+            let grad_bones =
+                inverse_skinning_bones_grad::<B>(weights, canonical, grad_points.clone());
+            grads.register::<B>(node.id, grad_bones);
+        }
         if let Some(node) = points_node {
             grads.register::<B>(node.id, grad_points);
         }
@@ -184,6 +196,28 @@ impl<B: FusedBackend> Backward<B, 2> for InverseSkinningBackward {
             grads.register::<B>(node.id, grad_weights);
         }
     }
+}
+
+/// The bones' gradient `[K, 12]` of inverse skinning `y = rot(M)⁻¹ (x − t(M))`, `M = W · A`, from the
+/// weights `W` `[N, K]`, the output `y` `[N, 3]` and the points' gradient `u = ∂L/∂x = rot(M)⁻ᵀ ∂L/∂y`
+/// `[N, 3]` (which the kernel's backward already computes): differentiating `rot(M) y + t(M) = x` gives
+/// `∂L/∂rot(M) = −u yᵀ` and `∂L/∂t(M) = −u`, so `∂L/∂M = −u [yᵀ 1]` (each row's top 3×4) and
+/// `∂L/∂A = Wᵀ · ∂L/∂M`. Plain tensor operations, so it serves every backend of the fused kernel.
+fn inverse_skinning_bones_grad<B: burn::backend::Backend>(
+    weights: FloatTensor<B>,
+    canonical: FloatTensor<B>,
+    grad_points: FloatTensor<B>,
+) -> FloatTensor<B> {
+    use burn::backend::{Shape, TensorMetadata};
+    let n = canonical.shape()[0];
+    let u = B::float_reshape(grad_points, Shape::new([n, 3, 1]));
+    let y = B::float_reshape(canonical, Shape::new([n, 1, 3]));
+    let rotation = B::float_matmul(u.clone(), y);
+    let per_point = B::float_reshape(B::float_cat(vec![rotation, u], 2), Shape::new([n, 12]));
+    B::float_neg(B::float_matmul(
+        B::float_swap_dims(weights, 0, 1),
+        per_point,
+    ))
 }
 
 /// The backward step of [`FusedBackend::prior_softmax`]; the state holds the prior and the output.
@@ -232,22 +266,24 @@ impl<B: FusedBackend, C: CheckpointStrategy> FusedBackend for Autodiff<B, C> {
         weights: FloatTensor<Self>,
         bones: FloatTensor<Self>,
     ) -> FloatTensor<Self> {
-        // The bones are constants: only the points and the weights are parents.
-        let bones = bones.into_primitive();
         match InverseSkinningBackward
-            .prepare::<C>([points.node(), weights.node()])
+            .prepare::<C>([points.node(), weights.node(), bones.node()])
             .compute_bound()
             .stateful()
         {
             OpsKind::Tracked(prep) => {
-                let (p, w) = (points.into_primitive(), weights.into_primitive());
-                let out = B::inverse_skinning(p.clone(), w.clone(), bones.clone());
-                prep.finish((p, w, bones), out)
+                let (p, w, b) = (
+                    points.into_primitive(),
+                    weights.into_primitive(),
+                    bones.into_primitive(),
+                );
+                let out = B::inverse_skinning(p.clone(), w.clone(), b.clone());
+                prep.finish((p, w, b, out.clone()), out)
             }
             OpsKind::UnTracked(prep) => prep.finish(B::inverse_skinning(
                 points.into_primitive(),
                 weights.into_primitive(),
-                bones,
+                bones.into_primitive(),
             )),
         }
     }

@@ -112,6 +112,37 @@ fn inverse_skinning_matches_the_tensor_reference_in_value_and_gradients() {
     compare("inverse skinning", &got, &expected, 2e-5);
 }
 
+/// The bones' gradient of the fused kernel (derived from the points' gradient) equals the tensor
+/// reference's autodiff gradient, with the points' gradient alongside.
+#[test]
+fn inverse_skinning_passes_the_bones_their_gradient() {
+    let (bones, points, weights) = skinning_inputs(23, 720);
+    let rows: Vec<f32> = bones
+        .matrices()
+        .iter()
+        .flat_map(|m| {
+            let t = m.transpose().to_cols_array();
+            t[..12].to_vec()
+        })
+        .collect();
+    let n = points.len() / 3;
+    let run = |fused: bool| {
+        let device = cpu_device().autodiff();
+        let w = from_rows(&weights, n, 24, &device);
+        differentiate(&cpu_device(), &rows, &points, 24, |b, p| {
+            let p = p.reshape([n, 3]);
+            let matrices = BoneMatrices::from_rows(b);
+            let out = if fused {
+                matrices.inverse(p, w.clone())
+            } else {
+                matrices.inverse_reference(p, w.clone())
+            };
+            out.reshape([24, n * 3 / 24])
+        })
+    };
+    compare("inverse skinning, bones", &run(true), &run(false), 5e-5);
+}
+
 /// Three bones, points and weights whose rows 0 and 1 blend a bone with its half-turn (a singular
 /// rotation, guarded) and whose row 2 is an ordinary blend.
 pub(super) fn singular_blends() -> (BoneTransforms, [f32; 9], [f32; 9]) {

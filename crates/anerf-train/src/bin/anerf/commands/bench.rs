@@ -352,6 +352,7 @@ impl StepWorkload {
                 volume: volume.clone(),
                 code: FrameCode::Training(1),
                 appearance: 1,
+                basis: None,
             },
             canonical: CanonicalInputs {
                 volume,
@@ -545,7 +546,7 @@ fn time_render(args: &BenchArgs, preset: ModelPreset, device: &Device) -> Result
 /// synthesised into `subject` when it is missing, its cache goes beside it.
 fn demo_frame_config(subject: &Path, preset: ModelPreset) -> Result<config::ExperimentConfig> {
     if !subject.join("annots.npy").is_file() {
-        super::synth::write(subject, anerf_data::synthetic::SynthPreset::Demo, None)?;
+        super::synth::write(subject, &anerf_data::synthetic::SynthPreset::Demo.spec())?;
     }
     let cache = subject
         .parent()
