@@ -99,6 +99,16 @@ pub fn write_frame(
     params: &FrameParams<'_>,
     vertices: &[Vec3],
 ) -> Result<(), FormatWriteError> {
+    write_params(&dir.join(format!("new_params/{index}.npy")), params)?;
+    write_npy(
+        &dir.join(format!("new_vertices/{index}.npy")),
+        &f32_points(vertices)?,
+    )
+}
+
+/// One frame's parameters at `path`, as `new_params/{i}.npy` holds them (a pickled dict of float64
+/// `poses`, `Rh`, `Th` and `shapes`, each `1 × n`).
+pub fn write_params(path: &Path, params: &FrameParams<'_>) -> Result<(), FormatWriteError> {
     let p = PyValue::dict([
         (
             "poses",
@@ -111,11 +121,7 @@ pub fn write_frame(
             f64_array(vec![1, params.shapes.len()], params.shapes.to_vec())?,
         ),
     ]);
-    write_object_npy(&dir.join(format!("new_params/{index}.npy")), &p)?;
-    write_npy(
-        &dir.join(format!("new_vertices/{index}.npy")),
-        &f32_points(vertices)?,
-    )
+    write_object_npy(path, &p)
 }
 
 /// `lbs/joints.npy`, `parents.npy`, `tvertices.npy` (canonical vertices), `weights.npy` and `faces.npy`

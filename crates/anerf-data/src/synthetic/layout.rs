@@ -1,11 +1,14 @@
 //! Writing a synthetic subject in the ZJU-MoCap layout (docs/REFERENCE.md §1.1, §1.3): `annots.npy`,
 //! `Camera_B<c>/<frame:06>.jpg`, `mask_cihp/Camera_B<c>/<frame:06>.png`, `new_params/<i>.npy`,
-//! `new_vertices/<i>.npy`, `lbs/{joints,parents,tvertices,weights,faces}.npy`, plus `splits.json`.
+//! `new_vertices/<i>.npy`, `lbs/{joints,parents,tvertices,weights,faces}.npy`, plus `splits.json` and,
+//! under pose noise, `true_params/<i>.npy`.
 
 use std::path::Path;
 use std::time::Instant;
 
-use anerf_core::geometry::{forward_lbs_points, Camera, CanonicalPose, GlobalTransform, Pose};
+use anerf_core::geometry::{
+    forward_lbs_points, BoneTransforms, Camera, CanonicalPose, GlobalTransform, Pose,
+};
 use anerf_core::mesh::TriMesh;
 use anerf_core::FrameId;
 use glam::Vec3;
@@ -17,7 +20,9 @@ use super::body::{build_body, Body};
 use super::cameras::ring_cameras;
 use super::clothing::dress;
 use super::lighting::Lighting;
+use super::mask_noise;
 use super::motion::{angles_to_axis_angle, clip_angles, global_rotation, heading, ClipSpec};
+use super::pose_noise::{PoseNoise, PoseNoiseReport};
 use super::raster::{render, RenderedView, Scene};
 use super::rng::SplitMix64;
 use super::{Splits, SynthError, SyntheticSpec, SyntheticSummary, Timings};
@@ -66,11 +71,20 @@ pub fn write_subject(spec: &SyntheticSpec, out_dir: &Path) -> Result<SyntheticSu
 
 /// One frame's pose and posed surfaces.
 struct PosedFrame {
+    /// The pose of the files (`new_params/<i>.npy`): the true one, or under pose noise a fit's.
     pose: Pose,
-    /// The described body posed (world space, metres): `new_vertices/<i>.npy`.
+    /// The described body posed by `pose` (world space, metres): `new_vertices/<i>.npy`.
     vertices: Vec<Vec3>,
-    /// The rendered surface posed (world space, metres).
+    /// The rendered surface posed by the true pose (world space, metres).
     surface: Vec<Vec3>,
+    /// Under pose noise, the truth the files miss.
+    truth: Option<Truth>,
+}
+
+/// A frame's true pose (`true_params/<i>.npy`) and the described body posed by it (world space, metres).
+struct Truth {
+    pose: Pose,
+    vertices: Vec<Vec3>,
 }
 
 fn camera_folder(view: usize) -> String {
@@ -113,7 +127,16 @@ fn write_into(
         .flat_map(|clip| (0..clip.frames).map(move |f| (*clip, f)))
         .collect::<Vec<_>>()
         .par_iter()
-        .map(|&(clip, f)| pose_frame(&body, &surface, clip, f))
+        .enumerate()
+        .map(|(i, &(clip, f))| {
+            let frame = pose_frame(&body, &surface, clip, f)?;
+            match &spec.pose_noise {
+                Some(noise) if i < spec.training.frames => {
+                    with_fit_errors(frame, &body, noise, spec.seed, i)
+                }
+                _ => Ok(frame),
+            }
+        })
         .collect::<Result<_, _>>()?;
     let body_done = Instant::now();
 
@@ -150,10 +173,16 @@ fn write_into(
             (0..cameras.len())
                 .map(|v| {
                     let eye = cameras[v].center();
-                    let view = render(&cameras[v], &scene, spec.supersampling, |s| match &lit {
-                        Some(lit) => lit.shade(outfit.albedo(s.canonical), s, eye),
-                        None => outfit.colour(s.canonical, s.canonical_normal),
-                    });
+                    let mut view =
+                        render(&cameras[v], &scene, spec.supersampling, |s| match &lit {
+                            Some(lit) => lit.shade(outfit.albedo(s.canonical), s, eye),
+                            None => outfit.colour(s.canonical, s.canonical_normal),
+                        });
+                    if spec.mask_noise > 0.0 {
+                        let (w, h) = (view.width as usize, view.height as usize);
+                        let item = (f * cameras.len() + v) as u64;
+                        mask_noise::perturb(&mut view.mask, w, h, spec.mask_noise, spec.seed, item);
+                    }
                     write_images(
                         &view,
                         &staging.join(image_path(v, f)),
@@ -225,6 +254,7 @@ fn write_into(
     Ok(SyntheticSummary {
         subject,
         foreground_pixels: counts,
+        pose_noise: pose_noise_report(&frames),
         posed_vertices: frames.into_iter().map(|f| f.vertices).collect(),
         splits,
         timings: Timings {
@@ -253,26 +283,79 @@ fn pose_frame(
         },
     };
     let transforms = body.skeleton.bone_transforms(&pose, CanonicalPose::TPose)?;
-    let rotation = pose.global.rotation();
-    let posed = |b: &Body| -> Result<Vec<Vec3>, SynthError> {
-        Ok(
-            forward_lbs_points(&b.mesh.vertices, b.weights.as_slice(), &transforms)?
-                .into_iter()
-                .map(|p| rotation * p)
-                .collect(),
-        )
-    };
-    let seen = posed(surface)?;
+    let seen = place(surface, &transforms, &pose.global)?;
     let floor = seen.iter().map(|p| p.z).fold(f32::INFINITY, f32::min);
     pose.global.th = Vec3::new(0.0, 0.0, -floor);
     let th = pose.global.th;
-    let lift = |v: Vec<Vec3>| -> Vec<Vec3> { v.into_iter().map(|p| p + th).collect() };
-    let vertices = lift(posed(body)?);
-    let surface = lift(seen);
     Ok(PosedFrame {
+        vertices: place(body, &transforms, &pose.global)?,
+        surface: seen.into_iter().map(|p| p + th).collect(),
         pose,
-        vertices,
-        surface,
+        truth: None,
+    })
+}
+
+/// `R(Rh) · LBS(x) + Th` for each canonical vertex `x` of `b`, with bones `transforms` and `global`'s
+/// `Rh`, `Th` (world space, metres).
+fn place(
+    b: &Body,
+    transforms: &BoneTransforms,
+    global: &GlobalTransform,
+) -> Result<Vec<Vec3>, SynthError> {
+    let rotation = global.rotation();
+    Ok(
+        forward_lbs_points(&b.mesh.vertices, b.weights.as_slice(), transforms)?
+            .into_iter()
+            .map(|p| rotation * p + global.th)
+            .collect(),
+    )
+}
+
+/// `frame` as a fitter with errors `noise` would give it (frame `index` of the subject of `seed`): the
+/// noisy pose and the described body posed by it exactly, the truth kept beside them, the rendered
+/// surface untouched.
+fn with_fit_errors(
+    frame: PosedFrame,
+    body: &Body,
+    noise: &PoseNoise,
+    seed: u64,
+    index: usize,
+) -> Result<PosedFrame, SynthError> {
+    let pose = noise.perturb(&frame.pose, seed, index);
+    let transforms = body.skeleton.bone_transforms(&pose, CanonicalPose::TPose)?;
+    Ok(PosedFrame {
+        vertices: place(body, &transforms, &pose.global)?,
+        pose,
+        surface: frame.surface,
+        truth: Some(Truth {
+            pose: frame.pose,
+            vertices: frame.vertices,
+        }),
+    })
+}
+
+/// The true poses of the frames with fit errors and the mean distance (metres) of their noisy vertices
+/// from the true ones; `None` without pose noise.
+fn pose_noise_report(frames: &[PosedFrame]) -> Option<PoseNoiseReport> {
+    let noisy: Vec<(&PosedFrame, &Truth)> = frames
+        .iter()
+        .filter_map(|f| f.truth.as_ref().map(|t| (f, t)))
+        .collect();
+    if noisy.is_empty() {
+        return None;
+    }
+    let (sum, count) = noisy.iter().fold((0.0f64, 0usize), |(sum, count), (f, t)| {
+        let d: f64 = f
+            .vertices
+            .iter()
+            .zip(&t.vertices)
+            .map(|(a, b)| f64::from(a.distance(*b)))
+            .sum();
+        (sum + d, count + t.vertices.len())
+    });
+    Some(PoseNoiseReport {
+        true_poses: noisy.iter().map(|(_, t)| t.pose.clone()).collect(),
+        mean_vertex_error: (sum / count.max(1) as f64) as f32,
     })
 }
 
@@ -314,8 +397,8 @@ fn write_encoded(
     std::fs::write(path, bytes).map_err(SynthError::io(path))
 }
 
-/// `annots.npy`, `new_params/`, `new_vertices/` and `lbs/` in the authors' layout ([`crate::zju_layout`]);
-/// the procedural body has no shape coefficients (ten zeros, as SMPL's mean shape).
+/// `annots.npy`, `new_params/`, `new_vertices/`, `lbs/` and, under pose noise, `true_params/` in the
+/// authors' layout ([`crate::zju_layout`]).
 fn write_arrays(
     dir: &Path,
     body: &Body,
@@ -330,20 +413,15 @@ fn write_arrays(
         .par_iter()
         .enumerate()
         .map(|(i, frame)| {
-            let poses: Vec<f64> = frame
-                .pose
-                .joint_rotations
-                .iter()
-                .flat_map(|r| r.to_array())
-                .map(f64::from)
-                .collect();
-            let params = zju_layout::FrameParams {
-                poses: &poses,
-                rh: frame.pose.global.rh.to_array().map(f64::from),
-                th: frame.pose.global.th.to_array().map(f64::from),
-                shapes: &[0.0; 10],
-            };
-            zju_layout::write_frame(dir, i, &params, &frame.vertices)
+            with_params(&frame.pose, |p| {
+                zju_layout::write_frame(dir, i, p, &frame.vertices)
+            })?;
+            match &frame.truth {
+                Some(truth) => with_params(&truth.pose, |p| {
+                    zju_layout::write_params(&dir.join(format!("true_params/{i}.npy")), p)
+                }),
+                None => Ok(()),
+            }
         })
         .collect::<Result<(), _>>()?;
     zju_layout::write_lbs(
@@ -354,4 +432,21 @@ fn write_arrays(
         &body.mesh.faces,
     )?;
     Ok(())
+}
+
+/// Calls `f` with `pose` as `new_params/<i>.npy` holds it: float64 axis-angles, `Rh`, `Th` (metres) and,
+/// as the procedural body has no shape coefficients, ten zeros (SMPL's mean shape).
+fn with_params<T>(pose: &Pose, f: impl FnOnce(&zju_layout::FrameParams<'_>) -> T) -> T {
+    let poses: Vec<f64> = pose
+        .joint_rotations
+        .iter()
+        .flat_map(|r| r.to_array())
+        .map(f64::from)
+        .collect();
+    f(&zju_layout::FrameParams {
+        poses: &poses,
+        rh: pose.global.rh.to_array().map(f64::from),
+        th: pose.global.th.to_array().map(f64::from),
+        shapes: &[0.0; 10],
+    })
 }

@@ -8,7 +8,9 @@ pub mod cameras;
 pub mod clothing;
 mod layout;
 pub mod lighting;
+mod mask_noise;
 pub mod motion;
+mod pose_noise;
 pub mod raster;
 mod rng;
 
@@ -26,6 +28,7 @@ pub use clothing::ClothingSpec;
 pub use layout::write_subject;
 pub use lighting::{Lighting, PointLight, StudioLights};
 pub use motion::{ClipSpec, MotionKind};
+pub use pose_noise::{PoseNoise, PoseNoiseReport};
 
 use crate::formats::FormatWriteError;
 use crate::subject::Subject;
@@ -55,6 +58,14 @@ pub struct SyntheticSpec {
     /// exactly the rendered surface and its weights).
     #[serde(default)]
     pub clothing: Option<ClothingSpec>,
+    /// Fit errors in the training frames' `new_params/` and `new_vertices/`, with the true poses in
+    /// `true_params/`; the images stay rendered from the true poses (absent: the files hold them).
+    #[serde(default)]
+    pub pose_noise: Option<PoseNoise>,
+    /// Segmentation-like errors of every mask's edge, up to this many pixels (a real number in 0–10;
+    /// 0: the masks are exact). The images stay exact.
+    #[serde(default)]
+    pub mask_noise: f32,
 }
 
 /// The named subjects of `anerf synth --preset`.
@@ -153,6 +164,8 @@ impl SyntheticSpec {
             jpeg_quality: 95,
             lighting: Lighting::BodyFixed,
             clothing: None,
+            pose_noise: None,
+            mask_noise: 0.0,
         }
     }
 
@@ -181,6 +194,8 @@ impl SyntheticSpec {
             jpeg_quality: 95,
             lighting: Lighting::BodyFixed,
             clothing: None,
+            pose_noise: None,
+            mask_noise: 0.0,
         }
     }
 
@@ -228,6 +243,8 @@ impl SyntheticSpec {
             jpeg_quality: 95,
             lighting: Lighting::Studio(StudioLights::three_point()),
             clothing: None,
+            pose_noise: None,
+            mask_noise: 0.0,
         }
     }
 
@@ -241,6 +258,10 @@ impl SyntheticSpec {
         if let Some(c) = &self.clothing {
             c.validate()?;
         }
+        if let Some(noise) = &self.pose_noise {
+            noise.validate()?;
+        }
+        mask_noise::validate(self.mask_noise)?;
         for (name, clip) in [
             ("training", &self.training),
             ("novel_pose", &self.novel_pose),
@@ -333,6 +354,8 @@ pub struct SyntheticSummary {
     pub posed_vertices: Vec<Vec<Vec3>>,
     /// Per frame and camera, the number of foreground pixels of the mask.
     pub foreground_pixels: Vec<Vec<usize>>,
+    /// Under pose noise, the training frames' true poses and how far the noisy vertices lie from the true.
+    pub pose_noise: Option<PoseNoiseReport>,
     pub splits: Splits,
     pub timings: Timings,
 }

@@ -45,7 +45,7 @@ fn demo(out: &Path, preset: Option<ModelPreset>, common: &Common, stop: &AtomicB
         jobs::open_device(choice, &options)?;
     }
     if !subject.join("annots.npy").is_file() {
-        super::synth::write(&subject, SynthPreset::Demo, None)?;
+        super::synth::write(&subject, &SynthPreset::Demo.spec())?;
     }
     let settings = Settings {
         root: Some(subject),

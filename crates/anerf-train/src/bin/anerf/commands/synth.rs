@@ -2,7 +2,7 @@
 
 use std::path::{Path, PathBuf};
 
-use anerf_data::synthetic::{write_subject, SynthPreset};
+use anerf_data::synthetic::{write_subject, PoseNoise, SynthPreset, SyntheticSpec};
 use anyhow::{Context, Result};
 use clap::Args;
 
@@ -18,19 +18,30 @@ pub struct SynthArgs {
     pub preset: SynthPreset,
     #[arg(long)]
     pub seed: Option<u64>,
+    /// Fit errors in the training frames' new_params/ and new_vertices/: `<degrees>[,<cm>]`, the standard
+    /// deviation of each joint's per-axis error angle (Rh gets a third of it) and of Th's per-axis offset
+    /// (default degrees / 1.5), each 0 to 20. The images keep the true poses, saved in true_params/.
+    #[arg(long, value_name = "DEGREES[,CM]")]
+    pub pose_noise: Option<PoseNoise>,
+    /// Segmentation-like mask edge errors of up to this many pixels (a real number, 0 to 10): the edge
+    /// moves in and out smoothly along the contour; the images stay exact.
+    #[arg(long, value_name = "PX", default_value_t = 0.0)]
+    pub mask_noise: f32,
 }
 
 pub fn run(args: &SynthArgs) -> Result<()> {
-    write(&args.out, args.preset, args.seed)
-}
-
-/// Writes subject `preset` (with `seed`, else the preset's) to `out` and says so.
-pub fn write(out: &Path, preset: SynthPreset, seed: Option<u64>) -> Result<()> {
-    let mut spec = preset.spec();
-    if let Some(s) = seed {
+    let mut spec = args.preset.spec();
+    if let Some(s) = args.seed {
         spec.seed = s;
     }
-    let summary = write_subject(&spec, out)
+    spec.pose_noise = args.pose_noise;
+    spec.mask_noise = args.mask_noise;
+    write(&args.out, &spec)
+}
+
+/// Writes the subject of `spec` to `out` and says so, with what pose noise did to the vertices.
+pub fn write(out: &Path, spec: &SyntheticSpec) -> Result<()> {
+    let summary = write_subject(spec, out)
         .with_context(|| format!("writing the synthetic subject to {}", out.display()))?;
     println!(
         "wrote {} ({} cameras, {} frames) in {:.1} s",
@@ -39,5 +50,15 @@ pub fn write(out: &Path, preset: SynthPreset, seed: Option<u64>) -> Result<()> {
         summary.subject.frames.len(),
         summary.timings.total.as_secs_f64()
     );
+    if let (Some(noise), Some(report)) = (&spec.pose_noise, &summary.pose_noise) {
+        println!(
+            "pose noise: {noise}: mean vertex error {:.2} cm over {} training frames (true poses in true_params/)",
+            report.mean_vertex_error * 100.0,
+            report.true_poses.len()
+        );
+    }
+    if spec.mask_noise > 0.0 {
+        println!("mask noise: edges moved by up to {} px", spec.mask_noise);
+    }
     Ok(())
 }
