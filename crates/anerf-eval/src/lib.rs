@@ -12,6 +12,7 @@ pub mod metrics;
 pub mod pixels;
 pub mod plots;
 pub mod report;
+pub mod silhouette;
 
 pub use compare::{compare_files, Comparison};
 pub use error::{EvalError, MetricError};

@@ -21,6 +21,7 @@ use crate::images::{
 };
 use crate::metrics::ImageMetrics;
 use crate::pixels::PixelMask;
+use crate::silhouette::{SilhouetteMetrics, Silhouettes};
 
 /// The two evaluations of the paper.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
@@ -81,6 +82,9 @@ pub struct ImageRecord {
     pub psnr: f64,
     #[serde(with = "metric_value")]
     pub ssim: f64,
+    /// Where the error lies against the true silhouette (when the image had one).
+    #[serde(flatten, default, skip_serializing_if = "Option::is_none")]
+    pub silhouette: Option<SilhouetteMetrics>,
 }
 
 impl ImageRecord {
@@ -101,32 +105,79 @@ pub struct Summary {
     #[serde(with = "metric_value")]
     pub ssim: f64,
     pub images: usize,
+    /// The means of the records' silhouette figures, when every record has them (a side of the band with
+    /// no pixel in some image is left out of its mean).
+    #[serde(flatten, default, skip_serializing_if = "Option::is_none")]
+    pub silhouette: Option<SilhouetteMetrics>,
 }
 
 impl Summary {
     /// The means of `records`, or `None` when there are none.
     pub fn of(records: &[ImageRecord]) -> Option<Self> {
         let n = records.len();
+        let silhouettes: Option<Vec<SilhouetteMetrics>> =
+            records.iter().map(|r| r.silhouette).collect();
+        let mean = |f: fn(&SilhouetteMetrics) -> f64, all: &[SilhouetteMetrics]| {
+            let values: Vec<f64> = all.iter().map(f).filter(|v| !v.is_nan()).collect();
+            values.iter().sum::<f64>() / values.len() as f64
+        };
         (n > 0).then(|| Self {
             psnr: records.iter().map(|r| r.psnr).sum::<f64>() / n as f64,
             ssim: records.iter().map(|r| r.ssim).sum::<f64>() / n as f64,
             images: n,
+            silhouette: silhouettes.map(|all| SilhouetteMetrics {
+                band_psnr: mean(|s| s.band_psnr, &all),
+                outside_band_psnr: mean(|s| s.outside_band_psnr, &all),
+                area_ratio: mean(|s| s.area_ratio, &all),
+            }),
         })
     }
 }
 
 /// A Markdown table like the paper's: one row per subject or split, PSNR to 2 decimals and SSIM to 3, and
 /// an `average` row (the mean of the rows, as in the paper) when there is more than one row.
+/// When every row has silhouette figures, three more columns give the band's PSNR, the PSNR outside it and
+/// the silhouette area ratio ([`SilhouetteMetrics`]).
 pub fn markdown_table(first_column: &str, rows: &[(String, Summary)]) -> String {
-    let mut table = format!("| {first_column} | PSNR | SSIM |\n|---|---:|---:|\n");
-    let line = |label: &str, psnr: f64, ssim: f64| format!("| {label} | {psnr:.2} | {ssim:.3} |\n");
+    let silhouettes = rows.iter().all(|(_, s)| s.silhouette.is_some());
+    let mut table = if silhouettes {
+        format!(
+            "| {first_column} | PSNR | SSIM | band PSNR | outside-band PSNR | area ratio |\n\
+             |---|---:|---:|---:|---:|---:|\n"
+        )
+    } else {
+        format!("| {first_column} | PSNR | SSIM |\n|---|---:|---:|\n")
+    };
+    let line = |label: &str, values: [f64; 5]| {
+        let [psnr, ssim, band, outside, area] = values;
+        if silhouettes {
+            format!("| {label} | {psnr:.2} | {ssim:.3} | {band:.2} | {outside:.2} | {area:.3} |\n")
+        } else {
+            format!("| {label} | {psnr:.2} | {ssim:.3} |\n")
+        }
+    };
+    let values = |s: &Summary| {
+        let sil = s.silhouette.unwrap_or(SilhouetteMetrics {
+            band_psnr: f64::NAN,
+            outside_band_psnr: f64::NAN,
+            area_ratio: f64::NAN,
+        });
+        [
+            s.psnr,
+            s.ssim,
+            sil.band_psnr,
+            sil.outside_band_psnr,
+            sil.area_ratio,
+        ]
+    };
     for (label, summary) in rows {
-        table += &line(label, summary.psnr, summary.ssim);
+        table += &line(label, values(summary));
     }
     if rows.len() > 1 {
         let n = rows.len() as f64;
-        let mean = |f: fn(&Summary) -> f64| rows.iter().map(|(_, s)| f(s)).sum::<f64>() / n;
-        table += &line("average", mean(|s| s.psnr), mean(|s| s.ssim));
+        let all: Vec<[f64; 5]> = rows.iter().map(|(_, s)| values(s)).collect();
+        let mean = std::array::from_fn(|i| all.iter().map(|v| v[i]).sum::<f64>() / n);
+        table += &line("average", mean);
     }
     table
 }
@@ -155,6 +206,8 @@ impl EvalRecorder {
     ///
     /// The images are measured as saved (16-bit PNG, steps of 1/65535), so re-measuring the files gives the
     /// same numbers; this moves PSNR by far less than 0.001 dB against the unquantised images.
+    /// With `silhouettes` (the true silhouette and the rendered opacity) the record also says where the
+    /// error lies ([`SilhouetteMetrics`]).
     pub fn add(
         &mut self,
         frame: FrameId,
@@ -162,6 +215,7 @@ impl EvalRecorder {
         pred: &Rgb32FImage,
         gt: &Rgb32FImage,
         mask: &PixelMask,
+        silhouettes: Option<&Silhouettes>,
     ) -> Result<ImageRecord, EvalError> {
         let pred = quantised(pred, PngDepth::Sixteen);
         let gt = quantised(gt, PngDepth::Sixteen);
@@ -171,13 +225,18 @@ impl EvalRecorder {
             view,
             psnr: 0.0,
             ssim: 0.0,
+            silhouette: None,
         };
         let stem = provisional.stem();
-        let metrics =
-            ImageMetrics::compute(&pred, &gt, Some(mask)).map_err(|source| EvalError::Metric {
-                context: format!("{}, {frame}, {view}", self.split),
-                source,
-            })?;
+        let metric_error = |source| EvalError::Metric {
+            context: format!("{}, {frame}, {view}", self.split),
+            source,
+        };
+        let metrics = ImageMetrics::compute(&pred, &gt, Some(mask)).map_err(metric_error)?;
+        let silhouette = silhouettes
+            .map(|s| SilhouetteMetrics::compute(&pred, &gt, mask, s))
+            .transpose()
+            .map_err(metric_error)?;
         let saved = SavedImages::new(&self.dir, &stem);
         write_png(&saved.pred, &pred, PngDepth::Sixteen)?;
         write_png(&saved.gt, &gt, PngDepth::Sixteen)?;
@@ -196,6 +255,7 @@ impl EvalRecorder {
         let record = ImageRecord {
             psnr: metrics.psnr,
             ssim: metrics.ssim,
+            silhouette,
             ..provisional
         };
         self.records.push(record);
@@ -326,11 +386,17 @@ pub fn read_summary_json(path: &Path) -> Result<Summary, EvalError> {
 }
 
 /// Writes records as CSV with a header; numbers in Rust's shortest round-trip form (`inf` for +∞).
+/// The silhouette columns are empty for a record without silhouette figures.
 pub fn write_records_csv(path: &Path, records: &[ImageRecord]) -> Result<(), EvalError> {
-    let mut text = String::from("split,frame,view,psnr,ssim\n");
+    let mut text =
+        String::from("split,frame,view,psnr,ssim,band_psnr,outside_band_psnr,area_ratio\n");
     for r in records {
+        let silhouette = r.silhouette.map_or_else(
+            || ",,".to_string(),
+            |s| format!("{},{},{}", s.band_psnr, s.outside_band_psnr, s.area_ratio),
+        );
         text += &format!(
-            "{},{},{},{},{}\n",
+            "{},{},{},{},{},{silhouette}\n",
             r.split, r.frame.0, r.view.0, r.psnr, r.ssim
         );
     }
@@ -356,7 +422,7 @@ fn write_text(w: &mut dyn Write, path: &Path, text: &str) -> Result<(), EvalErro
 
 /// Metric values in JSON: finite numbers as numbers, ±∞ and NaN (which JSON cannot hold) as "inf",
 /// "-inf" and "nan".
-mod metric_value {
+pub(crate) mod metric_value {
     use serde::{Deserialize, Deserializer, Serializer};
 
     pub fn serialize<S: Serializer>(v: &f64, s: S) -> Result<S::Ok, S::Error> {
@@ -399,6 +465,7 @@ mod tests {
             view: ViewId(7),
             psnr,
             ssim,
+            silhouette: None,
         }
     }
 
@@ -420,6 +487,7 @@ mod tests {
                     psnr: 22.054,
                     ssim: 0.8884,
                     images: 9,
+                    silhouette: None,
                 },
             ),
             (
@@ -428,6 +496,7 @@ mod tests {
                     psnr: 23.27,
                     ssim: 0.892,
                     images: 5,
+                    silhouette: None,
                 },
             ),
         ];

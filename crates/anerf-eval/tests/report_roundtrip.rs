@@ -8,6 +8,7 @@ use anerf_eval::report::{
     read_records_json, read_summary_json, recompute_from_saved, EvalRecorder, EvalSplit,
     ImageRecord,
 };
+use anerf_eval::silhouette::{SilhouetteMetrics, Silhouettes};
 use anerf_eval::{ImageMetrics, ImageSize, PixelMask, RgbImageExt};
 use image::Rgb32FImage;
 use rand::rngs::StdRng;
@@ -60,10 +61,28 @@ fn report_numbers_equal_a_recomputation_from_the_saved_images() {
     let mut recorded = Vec::new();
     let mut worst_quantisation_shift = 0.0f64;
     for (frame, view) in [(0, 1), (0, 2), (30, 1), (30, 5)] {
-        let (pred, gt, mask) = sample(&mut rng, ImageSize::new(37, 29));
+        let size = ImageSize::new(37, 29);
+        let (pred, gt, mask) = sample(&mut rng, size);
+        // Frame 30's images carry silhouettes: an ellipse as the truth, a uniform half opacity.
+        let truth = PixelMask::from_fn(size, |x, y| {
+            ((x as f32 - 18.0) / 9.0).powi(2) + ((y as f32 - 14.0) / 11.0).powi(2) <= 1.0
+        });
+        let opacity = vec![0.5; size.pixels()];
+        let silhouettes = Silhouettes {
+            truth: &truth,
+            opacity: &opacity,
+        };
         let record = recorder
-            .add(FrameId(frame), ViewId(view), &pred, &gt, &mask)
+            .add(
+                FrameId(frame),
+                ViewId(view),
+                &pred,
+                &gt,
+                &mask,
+                (frame == 30).then_some(&silhouettes),
+            )
             .unwrap();
+        assert_eq!(record.silhouette.is_some(), frame == 30);
         recorded.push(record);
         let unquantised = ImageMetrics::compute(&pred, &gt, Some(&mask)).unwrap();
         worst_quantisation_shift =
@@ -125,7 +144,10 @@ fn report_numbers_equal_a_recomputation_from_the_saved_images() {
     // The CSV holds the same numbers (shortest round-trip decimal form).
     let csv = std::fs::read_to_string(eval_dir.join("metrics.csv")).unwrap();
     let mut lines = csv.lines();
-    assert_eq!(lines.next(), Some("split,frame,view,psnr,ssim"));
+    assert_eq!(
+        lines.next(),
+        Some("split,frame,view,psnr,ssim,band_psnr,outside_band_psnr,area_ratio")
+    );
     let parsed: Vec<ImageRecord> = lines
         .map(|line| {
             let f: Vec<&str> = line.split(',').collect();
@@ -135,6 +157,11 @@ fn report_numbers_equal_a_recomputation_from_the_saved_images() {
                 view: ViewId(f[2].parse().unwrap()),
                 psnr: f[3].parse().unwrap(),
                 ssim: f[4].parse().unwrap(),
+                silhouette: (!f[5].is_empty()).then(|| SilhouetteMetrics {
+                    band_psnr: f[5].parse().unwrap(),
+                    outside_band_psnr: f[6].parse().unwrap(),
+                    area_ratio: f[7].parse().unwrap(),
+                }),
             }
         })
         .collect();
@@ -157,7 +184,7 @@ fn a_tampered_image_changes_the_recomputation() {
     let mut recorder = EvalRecorder::new(dir.path(), EvalSplit::NovelPose);
     let (pred, gt, mask) = sample(&mut rng, ImageSize::new(20, 24));
     let record = recorder
-        .add(FrameId(2), ViewId(3), &pred, &gt, &mask)
+        .add(FrameId(2), ViewId(3), &pred, &gt, &mask, None)
         .unwrap();
     recorder.finish().unwrap();
     let saved = dir

@@ -19,6 +19,10 @@ pub struct RenderedImage {
     pub ground_truth: Option<Rgb32FImage>,
     /// Pixels whose ray hits the padded body box (`mask_at_box`).
     pub mask: PixelMask,
+    /// Row-major rendered opacity per pixel (0 outside `mask`).
+    pub opacity: Vec<f32>,
+    /// The dataset mask's foreground pixels (when the view has an image): the true silhouette.
+    pub silhouette: Option<PixelMask>,
     /// Rays rendered (pixels inside `mask`).
     pub rays: usize,
     /// Samples that survived culling, those shaded before their ray stopped (early termination, empty
@@ -81,6 +85,7 @@ pub fn render_shot(
     let size = ImageSize::new(rays.width, rays.height);
     let mut prediction = Rgb32FImage::black(size);
     let mut hit = vec![false; size.pixels()];
+    let mut opacity = vec![0.0; size.pixels()];
     let (mut surviving_samples, mut shaded_samples, mut total_samples) = (0, 0, 0);
     for start in (0..rays.rays.len()).step_by(settings.chunk.max(1)) {
         let part = rays
@@ -90,15 +95,23 @@ pub fn render_shot(
         surviving_samples += out.surviving_samples;
         shaded_samples += out.shaded_samples;
         total_samples += out.total_samples;
-        for (rgb, [u, v]) in out.rgb.chunks_exact(3).zip(&part.pixels) {
+        for ((rgb, &acc), [u, v]) in out.rgb.chunks_exact(3).zip(&out.acc).zip(&part.pixels) {
             prediction.set_pixel(*u, *v, [rgb[0], rgb[1], rgb[2]]);
-            hit[(*v * size.width + *u) as usize] = true;
+            let i = (*v * size.width + *u) as usize;
+            hit[i] = true;
+            opacity[i] = acc;
         }
     }
+    let silhouette = shot.ground_truth.map(|(_, mask)| {
+        PixelMask::new(size, mask.pixels().map(|m| m[0] != 0).collect())
+            .expect("the mask's size was checked with the rays")
+    });
     Ok(RenderedImage {
         prediction,
         ground_truth: rays.ground_truth,
         mask: PixelMask::new(size, hit).expect("sized from the image"),
+        opacity,
+        silhouette,
         rays: rays.rays.len(),
         surviving_samples,
         shaded_samples,

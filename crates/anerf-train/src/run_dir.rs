@@ -65,6 +65,11 @@ impl RunDir {
         self.root.join("plots")
     }
 
+    /// The training frames' body fits as given and as refined (`model.pose_refinement`), written after stage 1.
+    pub fn refined_poses(&self) -> PathBuf {
+        self.root.join("refined_poses.json")
+    }
+
     pub fn renders(&self) -> PathBuf {
         self.root.join("renders")
     }

@@ -297,7 +297,7 @@ impl AnimatableNerf {
 
     /// `frame` with its bones corrected by the refined fit when it is a training frame of a model that
     /// refines fits and carries its given fit ([`FrameInputs::basis`]); `None` otherwise.
-    fn refined(&self, frame: &FrameInputs) -> Option<FrameInputs> {
+    pub(super) fn refined(&self, frame: &FrameInputs) -> Option<FrameInputs> {
         let (Some(pose), Some(basis), FrameCode::Training(f)) =
             (&self.pose, &frame.basis, frame.code)
         else {

@@ -242,6 +242,12 @@ impl ModelPreset {
                         half_extent: 1.3,
                     },
                 },
+                // The same steps as the default's at the hash grids' learning rate (1e-2, not 5e-4).
+                pose_refinement: PoseRefinementConfig {
+                    rotation_scale: 0.2,
+                    translation_scale: 0.05,
+                    ..PoseRefinementConfig::default()
+                },
                 occupancy: Some(OccupancyConfig {
                     resolution: 64,
                     density_threshold: 0.01,

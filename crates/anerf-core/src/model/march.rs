@@ -50,6 +50,8 @@ impl AnimatableNerf {
         canonical: &CanonicalInputs,
         termination: f32,
     ) -> MarchedRays {
+        let refined = self.refined(frame);
+        let frame = refined.as_ref().unwrap_or(frame);
         let s = self.config().samples_per_ray;
         let r = rays.len();
         let depths = sample_depths(rays, s);

@@ -54,6 +54,8 @@ pub(crate) struct Scene {
     pub bones: crate::geometry::BoneTransforms,
     /// The frame's given fit, for models that refine it.
     pub basis: PoseBasis,
+    pub skeleton: Skeleton,
+    pub pose: Pose,
 }
 
 fn scene(device: &Device, code: FrameCode) -> Scene {
@@ -122,6 +124,8 @@ fn scene(device: &Device, code: FrameCode) -> Scene {
         host_volume,
         bones,
         basis: PoseBasis::new(&skeleton, &pose, CanonicalPose::TPose, device),
+        skeleton,
+        pose,
     }
 }
 
@@ -970,4 +974,110 @@ fn pose_corrections_start_at_the_given_render_and_learn_from_the_colours() {
             "parameter {index}: gradient {analytic}"
         );
     }
+}
+
+/// The colours' gradient recovers a known correction: images rendered with the fit corrected by a known
+/// global rotation and translation are the target, the fields are frozen, and fitting the corrections from
+/// zero (Adam, 200 steps on two 48×48 views in turn) closes 70% of the way to its translation and 15% to its
+/// rotation.
+#[test]
+fn fitting_the_corrections_to_images_of_a_known_correction_recovers_it() {
+    use burn::optim::AdamConfig;
+    let device = cpu_device().autodiff();
+    device.seed(9);
+    let s = scene(&device, FrameCode::Training(1));
+    let config = ModelConfig {
+        pose_refinement: PoseRefinementConfig {
+            enabled: true,
+            rotation_scale: 1.0,
+            translation_scale: 0.5,
+            prior_weight: 0.0,
+            ..Default::default()
+        },
+        ..ModelPreset::Tiny.config()
+    };
+    let mut model = tiny_model_with(config, &device);
+    model.nerf = model.nerf.no_grad();
+    model.blend = model.blend.no_grad();
+    let frame = FrameInputs {
+        basis: Some(s.basis.clone()),
+        ..s.frame.clone()
+    };
+    // Two 48×48 cameras 2.5 m from the body, front and side (about 2 cm a pixel at the body).
+    let body = Aabb {
+        min: Vec3::new(-0.4, -0.6, -0.3),
+        max: Vec3::new(0.4, 0.9, 0.3),
+    };
+    let world_box = Aabb {
+        min: body.min + s.pose.global.th - 0.2,
+        max: body.max + s.pose.global.th + 0.2,
+    };
+    let rays: Vec<RayBatch> = [
+        (
+            [[-1.0, 0.0, 0.0], [0.0, -1.0, 0.0], [0.0, 0.0, 1.0]],
+            [0.0, 0.15, 2.5],
+        ),
+        (
+            [[0.0, 0.0, -1.0], [0.0, -1.0, 0.0], [-1.0, 0.0, 0.0]],
+            [0.0, 0.15, 2.4],
+        ),
+    ]
+    .into_iter()
+    .map(|(rotation, translation)| {
+        let camera = Camera::from_rows(
+            [[120.0, 0.0, 23.5], [0.0, 120.0, 23.5], [0.0, 0.0, 1.0]],
+            rotation,
+            translation,
+            [0.0; 5],
+            48,
+            48,
+        )
+        .unwrap();
+        let (host, _) = HostRays::from_rays(&camera.image_rays(Default::default()), &world_box);
+        RayBatch::new(&host, FrameId(1), ViewId(0), &device)
+    })
+    .collect();
+    // The known correction of training frame 1 (parameters = correction / scale), and its images.
+    let (rotation, translation) = (Vec3::new(0.04, -0.05, 0.03), Vec3::new(0.02, -0.015, 0.01));
+    let mut known = vec![0.0f32; 3 * 6];
+    known[6..9].copy_from_slice(&rotation.to_array());
+    known[9..12].copy_from_slice(&(translation / 0.5).to_array());
+    let set_root = |model: &mut AnimatableNerf, values: &[f32]| {
+        model.pose.as_mut().unwrap().root =
+            Param::from_tensor(from_rows(values, 3, 6, &device).require_grad());
+    };
+    set_root(&mut model, &known);
+    let targets: Vec<Tensor<2>> = rays
+        .iter()
+        .map(|r| {
+            model
+                .render(r, &frame, &s.canonical, None, false)
+                .rgb
+                .detach()
+        })
+        .collect();
+    set_root(&mut model, &[0.0; 18]);
+    let error = |model: &AnimatableNerf| {
+        let c = model.pose.as_ref().unwrap().correction(1);
+        (
+            (c.rotation - rotation).length(),
+            (c.translation - translation).length(),
+        )
+    };
+    let mut optim = AdamConfig::new().init();
+    for step in 0..200 {
+        let out = model.render(&rays[step % 2], &frame, &s.canonical, None, false);
+        let loss = color_mse(out.rgb, targets[step % 2].clone());
+        let grads = GradientsParams::from_grads(loss.backward(), &model);
+        model = optim.step(5e-3, model, grads);
+    }
+    // The translation is recovered closely; the rotation less (the untrained field is nearly symmetric
+    // about the body's long axis, so a turn about it barely changes the images).
+    let (r, t) = error(&model);
+    assert!(
+        r < 0.85 * rotation.length() && t < 0.3 * translation.length(),
+        "left {r:.4} of {:.4} rad and {t:.4} of {:.4} m",
+        rotation.length(),
+        translation.length()
+    );
 }

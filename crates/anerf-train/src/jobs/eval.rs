@@ -5,6 +5,7 @@ use std::path::{Path, PathBuf};
 
 use anerf_core::FrameId;
 use anerf_eval::report::{EvalRecorder, EvalSplit, Summary};
+use anerf_eval::silhouette::Silhouettes;
 use anyhow::{bail, Result};
 
 use super::{device, load_trained, open_run, JobOptions};
@@ -67,7 +68,18 @@ pub fn eval(run_path: &Path, split: EvalSplit, options: &JobOptions) -> Result<E
                 .ground_truth
                 .as_ref()
                 .expect("dataset views have images");
-            recorder.add(frame, view, &image.prediction, gt, &image.mask)?;
+            let silhouettes = image.silhouette.as_ref().map(|truth| Silhouettes {
+                truth,
+                opacity: &image.opacity,
+            });
+            recorder.add(
+                frame,
+                view,
+                &image.prediction,
+                gt,
+                &image.mask,
+                silhouettes.as_ref(),
+            )?;
             done += 1;
             bar.set_step(done);
         }

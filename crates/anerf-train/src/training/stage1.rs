@@ -53,7 +53,7 @@ pub fn train_stage1(
         cfg: &cfg,
         state,
     };
-    let (_, outcome) = match devices {
+    let (model, outcome) = match devices {
         None => drive(&mut step, Single::new(model, optim), &cfg, options, stop)?,
         Some(devices) => {
             if cfg.batch < devices.len() {
@@ -76,7 +76,45 @@ pub fn train_stage1(
             drive(&mut step, replicas, &cfg, options, stop)?
         }
     };
+    if model.pose.is_some() {
+        write_refined_poses(run, step.exp, &model)?;
+    }
     Ok(outcome)
+}
+
+/// One training frame's body fit, as the data gives it and as stage 1 refined it.
+#[derive(serde::Serialize)]
+struct RefinedPose {
+    /// Dataset frame index.
+    frame: usize,
+    given: anerf_core::geometry::Pose,
+    refined: anerf_core::geometry::Pose,
+}
+
+/// Writes every training frame's given and refined fit to [`RunDir::refined_poses`] (axis-angle radians,
+/// metres; `Rh`/`Th` as the datasets place the body), for the user and for comparing with true poses.
+fn write_refined_poses(run: &RunDir, exp: &Experiment, model: &AnimatableNerf) -> Result<()> {
+    let poses = exp
+        .train_frames
+        .iter()
+        .map(|&id| {
+            let given = exp
+                .prepared
+                .frame(id)
+                .context("a prepared frame")?
+                .pose
+                .clone();
+            Ok(RefinedPose {
+                frame: id.0,
+                refined: exp.frame_pose(model, id)?,
+                given,
+            })
+        })
+        .collect::<Result<Vec<_>>>()?;
+    let path = run.refined_poses();
+    let text = serde_json::to_string_pretty(&poses).expect("poses serialise");
+    anerf_data::atomic::write_bytes(&path, text.as_bytes())
+        .with_context(|| format!("writing {}", path.display()))
 }
 
 /// A fresh stage-1 model (seeded by the experiment) and the trainer state that starts it.
@@ -239,8 +277,23 @@ impl ShardedStep for Stage1<'_> {
         let jitter = (0..rays.len() * samples)
             .map(|_| rng.random::<f32>())
             .collect();
+        // Before the refinement's start the frames render with their given fits (and their corrections
+        // get no gradient and no penalty).
+        let refinement = &exp.config.model.pose_refinement;
+        let refining =
+            self.state.counters.step as f32 >= refinement.start * self.cfg.iterations as f32;
         let inputs = (0..replicas)
-            .map(|k| exp.frame_inputs_on(frame, k))
+            .map(|k| {
+                let inputs = exp.frame_inputs_on(frame, k)?;
+                Ok(if refining {
+                    inputs
+                } else {
+                    FrameInputs {
+                        basis: None,
+                        ..inputs
+                    }
+                })
+            })
             .collect::<Result<_>>()?;
         Ok(RayStep {
             frame,
@@ -392,9 +445,11 @@ const POSE_CHECK_EVERY: usize = 100;
 
 impl Stage1<'_> {
     /// The pose refinement's regulariser for the batch's frame (the same on every shard, so that the
-    /// shards' average is it); `None` without refinement.
+    /// shards' average is it); `None` without refinement or before its start.
     fn pose_penalty(&self, model: &AnimatableNerf, inputs: &FrameInputs) -> Option<Tensor<1>> {
-        let (pose, FrameCode::Training(f)) = (model.pose.as_ref()?, inputs.code) else {
+        let (pose, Some(_), FrameCode::Training(f)) =
+            (model.pose.as_ref()?, &inputs.basis, inputs.code)
+        else {
             return None;
         };
         let frames = &self.exp.train_frames;

@@ -9,6 +9,7 @@ use std::path::{Path, PathBuf};
 use std::time::SystemTime;
 
 use anerf_eval::report::{read_records_json, read_summary_json, EvalSplit, SavedImages};
+use anerf_eval::silhouette::SilhouetteMetrics;
 use anyhow::{Context, Result};
 use percent_encoding::{AsciiSet, NON_ALPHANUMERIC};
 use serde::Serialize;
@@ -52,6 +53,8 @@ pub struct Evaluation {
     pub split: String,
     pub psnr: Option<f64>,
     pub ssim: Option<f64>,
+    /// Where the error lies against the true silhouette (evaluations that measured it).
+    pub silhouette: Option<SilhouetteMetrics>,
     /// Per-view bar charts, where written.
     pub charts: Vec<String>,
     pub images: Vec<EvalImage>,
@@ -176,6 +179,7 @@ fn evaluations(run: &RunDir, stamps: &mut Stamps) -> Result<Vec<Evaluation>> {
             split: split.name().to_string(),
             psnr: summary.map(|s| s.psnr),
             ssim: summary.map(|s| s.ssim),
+            silhouette: summary.and_then(|s| s.silhouette),
             charts,
             images,
         });

@@ -54,8 +54,10 @@ function options(select, values, label) {
 
 function showEvaluation(index) {
   const evals = index.evaluations;
-  const rows = evals.map((e) => el('tr', {}, [el('td', { text: e.split }), el('td', { text: fmt(e.psnr, 2) }), el('td', { text: fmt(e.ssim, 3) }), el('td', { text: String(e.images.length) })]));
-  $('summary').replaceChildren(el('tr', {}, ['split', 'PSNR (dB)', 'SSIM', 'images'].map((h) => el('th', { text: h }))), ...rows);
+  // The silhouette figures (edge band's PSNR, the rest's, rendered/true area) where the evaluation has them.
+  const sil = (e, key, digits) => fmt(e.silhouette ? e.silhouette[key] : null, digits);
+  const rows = evals.map((e) => el('tr', {}, [e.split, fmt(e.psnr, 2), fmt(e.ssim, 3), sil(e, 'band_psnr', 2), sil(e, 'outside_band_psnr', 2), sil(e, 'area_ratio', 3), String(e.images.length)].map((text) => el('td', { text }))));
+  $('summary').replaceChildren(el('tr', {}, ['split', 'PSNR (dB)', 'SSIM', 'edge band (dB)', 'rest (dB)', 'area ratio', 'images'].map((h) => el('th', { text: h }))), ...rows);
   if (!evals.length) $('summary').replaceChildren(el('caption', { class: 'muted', text: 'Not evaluated yet: anerf eval <run>' }));
   $('charts').replaceChildren(...evals.flatMap((e) => e.charts.map((url) => el('img', { src: url, alt: `${e.split} ${url.split('?')[0].split('/').pop()}` }))));
   const all = evals.flatMap((e) => e.images.map((im) => ({ ...im, split: e.split })));

@@ -1,0 +1,99 @@
+#!/usr/bin/env python3
+"""How far a run's body fits are from the true poses of a synthetic subject written with `--pose-noise`.
+
+Usage: pose_error.py <subject folder> <run folder>
+
+Reads `<run>/refined_poses.json` (the training frames' given and refined fits, written after stage 1 when
+`model.pose_refinement.enabled`) and `<subject>/true_params/<i>.npy`, and prints, for the given and the
+refined fits, the mean geodesic angle between fitted and true joint rotations (degrees; every joint but the
+root, whose rotation the datasets keep in Rh, plus Rh itself), and the mean distance between the vertices the
+two poses place (centimetres; linear blend skinning of `lbs/tvertices.npy` with `lbs/weights.npy`, then
+x = R(Rh) x + Th, as the datasets do). numpy only.
+"""
+import json
+import os
+import sys
+
+import numpy as np
+
+
+def rodrigues(v):
+    v = np.asarray(v, dtype=np.float64)
+    theta = np.linalg.norm(v)
+    if theta < 1e-12:
+        return np.eye(3)
+    k = v / theta
+    kx = np.array([[0, -k[2], k[1]], [k[2], 0, -k[0]], [-k[1], k[0], 0]])
+    return np.eye(3) + np.sin(theta) * kx + (1 - np.cos(theta)) * kx @ kx
+
+
+def angle_between(a, b):
+    """Geodesic angle (radians) between two rotation matrices."""
+    cos = (np.trace(a.T @ b) - 1) / 2
+    return float(np.arccos(np.clip(cos, -1.0, 1.0)))
+
+
+def posed_vertices(lbs, joints_aa, rh, th):
+    joints, parents, vertices, weights = lbs
+    k = len(joints)
+    rot = [rodrigues(joints_aa[j]) for j in range(k)]
+    g = [None] * k
+    for j in range(k):
+        local = np.eye(4)
+        local[:3, :3] = rot[j]
+        local[:3, 3] = joints[j] - (joints[parents[j]] if parents[j] >= 0 else 0)
+        g[j] = local if parents[j] < 0 else g[parents[j]] @ local
+    bones = np.stack([gj @ np.block([[np.eye(3), -joints[j][:, None]], [np.zeros((1, 3)), 1]])
+                      for j, gj in enumerate(g)])
+    blended = np.einsum("vk,kij->vij", weights, bones)
+    homogeneous = np.concatenate([vertices, np.ones((len(vertices), 1))], axis=1)
+    local = np.einsum("vij,vj->vi", blended, homogeneous)[:, :3]
+    return local @ rodrigues(rh).T + th
+
+
+def pose_of(entry):
+    return (np.array(entry["joint_rotations"], dtype=np.float64),
+            np.array(entry["global"]["rh"], dtype=np.float64),
+            np.array(entry["global"]["th"], dtype=np.float64))
+
+
+def true_pose(subject, frame):
+    params = np.load(os.path.join(subject, "true_params", f"{frame}.npy"), allow_pickle=True).item()
+    return (np.asarray(params["poses"], dtype=np.float64).reshape(-1, 3),
+            np.asarray(params["Rh"], dtype=np.float64).reshape(3),
+            np.asarray(params["Th"], dtype=np.float64).reshape(3))
+
+
+def errors(lbs, fit, truth):
+    (fj, frh, fth), (tj, trh, tth) = fit, truth
+    angles = [angle_between(rodrigues(a), rodrigues(b)) for a, b in zip(fj[1:], tj[1:])]
+    angles.append(angle_between(rodrigues(frh), rodrigues(trh)))
+    distance = np.linalg.norm(posed_vertices(lbs, fj, frh, fth) - posed_vertices(lbs, tj, trh, tth), axis=1)
+    return np.degrees(np.mean(angles)), 100 * float(np.mean(distance))
+
+
+def main():
+    if len(sys.argv) != 3:
+        sys.exit(__doc__)
+    subject, run = sys.argv[1:]
+    lbs_dir = os.path.join(subject, "lbs")
+    parents = np.load(os.path.join(lbs_dir, "parents.npy")).astype(np.int64)
+    parents = np.where((parents < 0) | (parents >= 2**31), -1, parents)
+    lbs = (np.load(os.path.join(lbs_dir, "joints.npy")).astype(np.float64), parents,
+           np.load(os.path.join(lbs_dir, "tvertices.npy")).astype(np.float64),
+           np.load(os.path.join(lbs_dir, "weights.npy")).astype(np.float64))
+    with open(os.path.join(run, "refined_poses.json")) as f:
+        frames = json.load(f)
+    rows = {"given": [], "refined": []}
+    for entry in frames:
+        truth = true_pose(subject, entry["frame"])
+        for kind in rows:
+            rows[kind].append(errors(lbs, pose_of(entry[kind]), truth))
+    for kind, values in rows.items():
+        a = np.array(values)
+        print(f"{kind}: mean joint angle error {a[:, 0].mean():.3f} deg, mean vertex error {a[:, 1].mean():.3f} cm"
+              f" over {len(values)} training frames")
+
+
+if __name__ == "__main__":
+    main()
