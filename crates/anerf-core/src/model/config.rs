@@ -244,8 +244,8 @@ impl ModelPreset {
                 },
                 // The same steps as the default's at the hash grids' learning rate (1e-2, not 5e-4).
                 pose_refinement: PoseRefinementConfig {
-                    rotation_scale: 0.2,
-                    translation_scale: 0.05,
+                    rotation_scale: 0.05,
+                    translation_scale: 0.0125,
                     ..PoseRefinementConfig::default()
                 },
                 occupancy: Some(OccupancyConfig {

@@ -23,10 +23,11 @@ pub struct PoseRefinementConfig {
     /// Learn corrections of the training frames' fits (off: the fits are taken as exact).
     pub enabled: bool,
     /// Radians of correction per unit of parameter: Adam moves a rotation by about this times the learning
-    /// rate a step (default 4: 2e-3 rad a step at the paper's 5e-4; the `fast` preset's 0.2 gives the same at
-    /// its 1e-2).
+    /// rate a step (default 1: 5e-4 rad a step at the paper's 5e-4; the `fast` preset's 0.05 gives the same at
+    /// its 1e-2). Four times larger steps correct noisy fits no better and make exact ones wander
+    /// (docs/POSE-REFINEMENT.md).
     pub rotation_scale: f32,
-    /// Metres of correction per unit of parameter (default 1: 0.5 mm a step at 5e-4; `fast`: 0.05).
+    /// Metres of correction per unit of parameter (default 0.25: 0.125 mm a step at 5e-4; `fast`: 0.0125).
     pub translation_scale: f32,
     /// Weight of the pull toward the given fit: the mean over joints of `|δ_k|²` plus `|δ_r|²` (radians²)
     /// plus `|δ_t|²` (metres²: a rotation's radian moves a point 1 m from the joint by about a metre).
@@ -44,8 +45,8 @@ impl Default for PoseRefinementConfig {
     fn default() -> Self {
         Self {
             enabled: false,
-            rotation_scale: 4.0,
-            translation_scale: 1.0,
+            rotation_scale: 1.0,
+            translation_scale: 0.25,
             prior_weight: 0.1,
             start: 0.2,
             smooth_weight: 0.0,

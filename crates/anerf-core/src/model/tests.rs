@@ -918,6 +918,8 @@ fn pose_corrections_start_at_the_given_render_and_learn_from_the_colours() {
     let config = ModelConfig {
         pose_refinement: PoseRefinementConfig {
             enabled: true,
+            rotation_scale: 4.0,
+            translation_scale: 1.0,
             ..Default::default()
         },
         ..ModelPreset::Tiny.config()
