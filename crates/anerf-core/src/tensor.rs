@@ -23,6 +23,21 @@ pub fn from_rows(data: &[f32], rows: usize, cols: usize, device: &Device) -> Ten
     Tensor::<1>::from_floats(data, device).reshape([rows, cols])
 }
 
+/// `module` with every parameter initialised now, in the module's visiting order. Burn initialises a
+/// parameter lazily, drawing from the device's random stream when it is first read, so without this the
+/// values a seed gives depend on the order the code first touches the parameters: a forward pass reads
+/// them in one order, a copy to another device (data-parallel replicas) in another.
+pub fn materialised<M: Module>(module: M) -> M {
+    struct Touch;
+    impl ModuleVisitor for Touch {
+        fn visit_float<const D: usize>(&mut self, param: &Param<Tensor<D>>) {
+            let _ = param.val();
+        }
+    }
+    module.visit(&mut Touch);
+    module
+}
+
 /// The gradient of every float parameter of `module`, read back to the host in the module's visiting order
 /// (`None` where `grads` holds none): for checking where gradients reach and comparing them across backends.
 pub fn parameter_gradients<M: Module>(

@@ -20,7 +20,7 @@ use crate::render::{
     blend_consistency, blend_consistency_parts, composite, stratified_depths, ConsistencyParts,
     RayBatch,
 };
-use crate::tensor::to_host;
+use crate::tensor::{materialised, to_host};
 
 /// How many frames and joints the model is built for.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -200,9 +200,10 @@ pub struct AnimatableNerf {
 }
 
 impl AnimatableNerf {
-    /// A freshly initialised stage-1 model.
+    /// A freshly initialised stage-1 model, every parameter drawn now ([`materialised`]): a seeded device
+    /// gives the same model however it is used next.
     pub fn new(config: &ModelConfig, sizes: ModelSizes, device: &Device) -> Self {
-        Self {
+        materialised(Self {
             nerf: CanonicalNerf::new(config, sizes.training_frames, device),
             blend: BlendWeightField::new(
                 config,
@@ -222,7 +223,7 @@ impl AnimatableNerf {
             }),
             config: config.clone(),
             occupancy: None,
-        }
+        })
     }
 
     /// The occupancy grid, once built.
@@ -267,13 +268,13 @@ impl AnimatableNerf {
     pub fn with_novel_field(self, novel_frames: usize, device: &Device) -> Self {
         let joints = self.blend.num_joints();
         Self {
-            novel_blend: Some(BlendWeightField::new(
+            novel_blend: Some(materialised(BlendWeightField::new(
                 &self.config,
                 novel_frames,
                 joints,
                 self.config.novel_residual_init,
                 device,
-            )),
+            ))),
             ..self.freeze_stage1()
         }
     }

@@ -498,6 +498,40 @@ impl ModuleVisitor for ParamList {
     }
 }
 
+/// Counts the float parameters Burn has not yet initialised (drawn from the device's random stream).
+struct Undrawn(usize);
+impl ModuleVisitor for Undrawn {
+    fn visit_float<const D: usize>(&mut self, param: &Param<Tensor<D>>) {
+        self.0 += usize::from(!param.is_initialized());
+    }
+}
+
+#[test]
+fn a_new_model_and_its_novel_field_hold_every_parameter_drawn() {
+    // A lazily drawn parameter takes its value when first read, so the same seed would give another model
+    // when the first reader differs (a forward pass or a copy to a data-parallel replica).
+    let device = cpu_device().autodiff();
+    let mut config = ModelPreset::Tiny.config();
+    config.pose_refinement.enabled = true;
+    let sizes = ModelSizes {
+        training_frames: 3,
+        joints: 4,
+    };
+    let model = AnimatableNerf::new(&config, sizes, &device);
+    let count = |m: &AnimatableNerf| {
+        let mut undrawn = Undrawn(0);
+        m.visit(&mut undrawn);
+        let mut all = ParamList(Vec::new());
+        m.visit(&mut all);
+        (undrawn.0, all.0.len())
+    };
+    let (undrawn, all) = count(&model);
+    assert!(all > 10, "{all} parameters");
+    assert_eq!(undrawn, 0, "{undrawn} of {all} parameters not drawn");
+    let animated = model.with_novel_field(3, &device);
+    assert_eq!(count(&animated).0, 0);
+}
+
 #[test]
 fn rendered_colour_gradients_match_finite_differences() {
     let device = cpu_device().autodiff();

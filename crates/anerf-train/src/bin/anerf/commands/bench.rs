@@ -107,12 +107,20 @@ pub struct PresetFigures {
     pub load_before: f64,
 }
 
-/// One timed render.
+/// Renders timed after the first: the warm figure.
+const WARM_RENDERS: usize = 3;
+
+/// One view rendered once cold, then [`WARM_RENDERS`] times again.
 #[derive(Debug, Clone, Serialize)]
 pub struct RenderFigures {
     pub width: u32,
     pub height: u32,
+    /// The first render: it also uploads the frame's inputs and, on a GPU, compiles and autotunes every
+    /// kernel the render launches.
     pub seconds: f64,
+    /// The renders after it, and their median: what an interactive viewer or a long render pays per image.
+    pub warm_seconds: Vec<f64>,
+    pub warm_median: Option<f64>,
     /// Rays that hit the body box (the others are black without any work).
     pub rays: usize,
     /// Samples that survive culling / all samples along those rays.
@@ -147,12 +155,13 @@ pub fn run(args: &BenchArgs) -> Result<Vec<PresetFigures>> {
     let (device, adapter) = (checked.device, checked.adapter);
     if !args.json {
         println!(
-            "{:<6} {:>9} {:>12} {:>10} {:>9} {:>10} {:>8} {:>10} {:>6}",
+            "{:<6} {:>9} {:>12} {:>10} {:>9} {:>7} {:>10} {:>8} {:>10} {:>6}",
             "preset",
             "step s",
             "points/s",
             "step MiB",
             "render s",
+            "1st s",
             "surviving",
             "shaded",
             "render MiB",
@@ -245,11 +254,12 @@ fn print_row(f: &PresetFigures) {
     let opt =
         |v: Option<f64>, digits: usize| v.map_or("-".to_string(), |v| format!("{v:.digits$}"));
     println!(
-        "{:<6} {:>9} {:>12} {:>10} {:>9} {:>10} {:>8} {:>10} {:>6.2}",
+        "{:<6} {:>9} {:>12} {:>10} {:>9} {:>7} {:>10} {:>8} {:>10} {:>6.2}",
         f.preset,
         opt(f.step_median, 3),
         opt(f.points_per_second, 0),
         opt(f.step_peak_mib, 0),
+        opt(f.render.as_ref().and_then(|r| r.warm_median), 3),
         opt(f.render.as_ref().map(|r| r.seconds), 2),
         opt(f.render.as_ref().map(|r| r.surviving_fraction), 3),
         opt(f.render.as_ref().map(|r| r.shaded_fraction), 3),
@@ -527,13 +537,21 @@ fn time_render(args: &BenchArgs, preset: ModelPreset, device: &Device) -> Result
     let base = exp.prepared.cameras[view.0].clone();
     let camera = base.resized(args.render_size as f32 / base.width.max(base.height) as f32);
     reset_peak_memory();
-    let started = Instant::now();
-    let image = render_view(&model, &mut exp, frame, &camera, None)?;
-    let seconds = started.elapsed().as_secs_f64();
+    let mut timed = || -> Result<_> {
+        let started = Instant::now();
+        let image = render_view(&model, &mut exp, frame, &camera, None)?;
+        Ok((started.elapsed().as_secs_f64(), image))
+    };
+    let (seconds, image) = timed()?;
+    let warm_seconds = (0..WARM_RENDERS)
+        .map(|_| Ok(timed()?.0))
+        .collect::<Result<Vec<_>>>()?;
     Ok(RenderFigures {
         width: camera.width,
         height: camera.height,
         seconds,
+        warm_median: median(&warm_seconds),
+        warm_seconds,
         rays: image.rays,
         surviving_fraction: image.surviving_samples as f64 / image.total_samples.max(1) as f64,
         shaded_fraction: image.shaded_samples as f64 / image.total_samples.max(1) as f64,
