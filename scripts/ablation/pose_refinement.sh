@@ -52,7 +52,7 @@ variant() {
     [ -z "$ITERATIONS" ] || schedule=(--iterations "$ITERATIONS")
     local start=$SECONDS
     "$ANERF" train --data "$subject" "${FRAMES[@]}" --preset fast --quiet --overwrite \
-        --out "$run" --set "dataset.cache=$OUT/cache-$(basename "$subject")" --set train.skip_mask_edges=false \
+        --out "$run" --set "dataset.cache=$OUT/cache-$(basename "$subject")" --set train.mask_edges=train \
         "${schedule[@]}" "$@" "${EXTRA[@]}"
     echo "$label: stage 1 took $((SECONDS - start)) s"
     "$ANERF" animate "$run" --quiet

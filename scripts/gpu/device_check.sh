@@ -9,9 +9,10 @@
 #   2. `anerf bench` on the first device of DEVICES for the `fast` and `paper` presets (a 512² render with
 #      `fast`),
 #   3. scripts/bench/torch_reference.py on the same networks and device (when PyTorch is there),
-#   4. the demo end to end on the first device,
+#   4. the demo end to end on the first device, then its trained model's 512² render (cold and warm) and
+#      CubeCL kernel profiles of that render and of 60 training steps,
 #   5. data-parallel training (`anerf train --devices`, Burn's all-reduce; on cuda:0, or cuda:0,cuda:1 where
-#      two GPUs exist) against one-device training of the same seed: both runs' first losses,
+#      two GPUs exist) against one-device training of the same seed, run twice: the runs' first losses,
 #   6. `anerf bench` on the other devices of DEVICES,
 #
 # and writes figures.json (every figure, the GPU's name, the adapter each device ran on) and check.log into
@@ -196,11 +197,30 @@ else
     skipped torch "$python has no torch"
 fi
 
+# A profiled anerf command: `profile NAME args...` runs `anerf args...` with CubeCL's kernel log and writes
+# the per-kernel summary to OUT/profile_NAME.txt (the log itself, megabytes, stays in the work folder).
+profile() {
+    local name=$1
+    shift
+    step "profile_$name" 90 "$work/profile_$name.out" env CUBECL_DEBUG_LOG="$work/profile_$name.log" "$anerf" "$@"
+    python3 scripts/gpu/kernel_profile.py "$work/profile_$name.log" --top 40 >"$out/profile_$name.txt" 2>>"$log"
+}
+
 # 4. The demo end to end on the first device (its plain progress lines go to the log).
 if [ "$demo" = 1 ]; then
     step "demo_${first}" 180 "$out/demo_${first}.txt" "$anerf" demo --device "$first" --out "$work/demo"
     cp "$work/demo/run/eval/novel-view/summary.json" "$out/demo_novel_view.json" 2>/dev/null
     cp "$work/demo/run/eval/novel-pose/summary.json" "$out/demo_novel_pose.json" 2>/dev/null
+    # The trained demo's 512² render, cold and warm, and where a warm render's and a training step's device
+    # time goes: CubeCL's per-kernel log (synchronised after each kernel), summed by kernel_profile.py.
+    if [ -d "$work/demo/run" ]; then
+        step "render_trained_${first}" 60 "$out/render_trained_${first}.json" \
+            "$anerf" bench --device "$first" --run "$work/demo/run" --steps 0 --render-size 512 --json
+        profile render bench --device "$first" --run "$work/demo/run" --steps 0 --render-size 512 --json
+        profile stage1 train configs/demo.toml --device "$first" --set "dataset.root=$work/demo/subject" \
+            --set "dataset.cache=$work/demo/cache" --iterations 60 --quiet --set train.log_every=20 \
+            --out "$work/profile_run"
+    fi
 fi
 
 # 5. Data-parallel training against one device, the same seed: the first steps' losses must agree.
@@ -212,6 +232,8 @@ if [ "$first" = cuda ]; then
     short_run=("$anerf" train --data "$work/ddp_subject" --preset tiny --iterations 6 --quiet
         --set train.log_every=1)
     step ddp_one_device 90 "$work/ddp_one.txt" "${short_run[@]}" --device cuda --out "$work/ddp_one"
+    # The same one-device run again: how far two runs of one seed differ on this GPU.
+    step ddp_one_again 90 "$work/ddp_again.txt" "${short_run[@]}" --device cuda --out "$work/ddp_again"
     step ddp_parallel 90 "$work/ddp_parallel.txt" "${short_run[@]}" --devices "$parallel" \
         --out "$work/ddp_parallel"
     python3 - "$work" "$parallel" >"$out/ddp.json" 2>>"$log" <<'EOF'
@@ -222,9 +244,11 @@ def losses(run):
     if not log.is_file():
         return []
     return [json.loads(l)["loss"] for l in log.read_text().splitlines() if l.strip()]
-one, parallel = losses("ddp_one"), losses("ddp_parallel")
-worst = max((abs(a - b) / max(abs(a), 1e-12) for a, b in zip(one, parallel)), default=None)
-print(json.dumps({"devices": devices, "one_device": one, "parallel": parallel, "worst_relative": worst}))
+def worst(a, b):
+    return max((abs(x - y) / max(abs(x), 1e-12) for x, y in zip(a, b)), default=None)
+one, again, parallel = losses("ddp_one"), losses("ddp_again"), losses("ddp_parallel")
+print(json.dumps({"devices": devices, "one_device": one, "one_device_again": again, "parallel": parallel,
+                  "worst_relative": worst(one, parallel), "worst_relative_again": worst(one, again)}))
 EOF
 else
     skipped ddp "data-parallel training needs cuda as the first of DEVICES (Burn 0.22.1 all-reduces on CUDA only)"

@@ -16,6 +16,54 @@ use thiserror::Error;
 use crate::error::DataError;
 use crate::prepare::PreparedSubject;
 
+/// What training draws from the band `dilate(mask) − erode(mask)` of a 5×5 kernel around the mask's edge
+/// (the reference's `erode_edge`), marked on the full-resolution mask by `prepare` ([`ImageView::edge`]):
+/// the pixels a real capture's mask is most often wrong about.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum MaskEdges {
+    /// Drawn like every pixel, with the mask's colour and label: for exact masks (synthetic subjects).
+    Train,
+    /// Never drawn (the reference): the mask's errors are not learned, and the edge is not trained either.
+    #[default]
+    Skip,
+    /// Drawn without colour or label ([`HostRays::edge`] marks them): the loss asks only that the ray be
+    /// opaque or empty, so the silhouette is sharp where the other views and the trusted pixels put it.
+    Unlabelled,
+}
+
+impl MaskEdges {
+    /// Reads the setting as written today (`"skip"`, `"train"`, `"unlabelled"`) or as the boolean
+    /// `skip_mask_edges` of earlier versions' configs and checkpoints (`true` skips, `false` trains).
+    pub fn deserialize_compatible<'de, D: serde::Deserializer<'de>>(
+        d: D,
+    ) -> Result<Self, D::Error> {
+        struct Either;
+        impl serde::de::Visitor<'_> for Either {
+            type Value = MaskEdges;
+            fn expecting(&self, f: &mut std::fmt::Formatter) -> std::fmt::Result {
+                f.write_str(r#""skip", "train" or "unlabelled""#)
+            }
+            fn visit_bool<E: serde::de::Error>(self, skip: bool) -> Result<MaskEdges, E> {
+                Ok(if skip {
+                    MaskEdges::Skip
+                } else {
+                    MaskEdges::Train
+                })
+            }
+            fn visit_str<E: serde::de::Error>(self, name: &str) -> Result<MaskEdges, E> {
+                match name {
+                    "skip" => Ok(MaskEdges::Skip),
+                    "train" => Ok(MaskEdges::Train),
+                    "unlabelled" => Ok(MaskEdges::Unlabelled),
+                    _ => Err(E::invalid_value(serde::de::Unexpected::Str(name), &self)),
+                }
+            }
+        }
+        d.deserialize_any(Either)
+    }
+}
+
 /// How training rays are drawn.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct SamplerOptions {
@@ -23,9 +71,12 @@ pub struct SamplerOptions {
     pub rays: usize,
     /// Share of rays drawn on the body mask (`body_sample_ratio`); the rest uniformly in the projected box.
     pub body_fraction: f32,
-    /// Never sample the band `dilate(mask) − erode(mask)` of a 5×5 kernel (`erode_edge`), marked on the
-    /// full-resolution mask by `prepare` as the reference does ([`ImageView::edge`]).
-    pub skip_mask_edges: bool,
+    /// What is drawn from the band around the mask's edge.
+    #[serde(
+        alias = "skip_mask_edges",
+        deserialize_with = "MaskEdges::deserialize_compatible"
+    )]
+    pub mask_edges: MaskEdges,
     /// Extra padding of the (already 0.05 m padded) box for near/far (metres).
     pub near_far_padding: f32,
     pub convention: PixelConvention,
@@ -37,7 +88,7 @@ impl Default for SamplerOptions {
         Self {
             rays: 1024,
             body_fraction: 0.5,
-            skip_mask_edges: true,
+            mask_edges: MaskEdges::Skip,
             near_far_padding: 0.01,
             convention: PixelConvention::Integer,
         }
@@ -117,7 +168,7 @@ impl RaySampler {
             .pixels()
             .map(|p| if p[0] != 0 { BODY } else { BACKGROUND })
             .collect();
-        if self.options.skip_mask_edges {
+        if self.options.mask_edges != MaskEdges::Train {
             let computed;
             let band = match view.edge {
                 Some(band) => band,
@@ -137,15 +188,16 @@ impl RaySampler {
             .filter(|&i| bound[i] && classes[i] == BODY)
             .map(|i| i as u32)
             .collect();
+        let drawn_edges = self.options.mask_edges == MaskEdges::Unlabelled;
         let boxed: Vec<u32> = (0..classes.len())
-            .filter(|&i| bound[i] && classes[i] != EDGE)
+            .filter(|&i| bound[i] && (classes[i] != EDGE || drawn_edges))
             .map(|i| i as u32)
             .collect();
         if boxed.is_empty() {
             return Err(SamplerError::EmptyBox);
         }
         let gt = |i: usize| -> [f32; 3] {
-            if bound[i] && classes[i] != BACKGROUND {
+            if bound[i] && classes[i] == BODY {
                 view.image.as_raw()[3 * i..3 * i + 3]
                     .try_into()
                     .expect("3 channels")
@@ -181,6 +233,7 @@ impl RaySampler {
                     let i = i as usize;
                     push_ray(&mut out, &ray, hit.near, hit.far, gt(i), [u, v]);
                     out.foreground.push(bound[i] && classes[i] == BODY);
+                    out.edge.push(classes[i] == EDGE);
                 }
             }
         }

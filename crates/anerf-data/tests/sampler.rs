@@ -6,8 +6,8 @@ use anerf_data::formats::{self, NdArray};
 use anerf_data::prepare::{FrameSelection, ImageScale};
 use anerf_data::sampler::{box_mask, edge_band};
 use anerf_data::{
-    image_rays, load_zju_mocap, prepare, LoadOptions, PrepareOptions, PreparedSubject, RaySampler,
-    SamplerOptions,
+    image_rays, load_zju_mocap, prepare, LoadOptions, MaskEdges, PrepareOptions, PreparedSubject,
+    RaySampler, SamplerOptions,
 };
 use anerf_testing::fixture;
 use image::GrayImage;
@@ -126,6 +126,48 @@ fn training_rays_follow_the_reference_scheme() {
     }
     // Half of the first round is drawn on the body; the uniform half adds some more.
     assert!((250..450).contains(&on_body), "{on_body} rays on the body");
+}
+
+#[test]
+fn unlabelled_edge_rays_come_from_the_band_and_carry_no_label() {
+    let dir = tempfile::tempdir().unwrap();
+    let p = prepared(dir.path());
+    let (frame, view) = (FrameId(1), ViewId(2));
+    let cam = &p.cameras[view.0];
+    let (_, band) = p.mask_and_edge(frame, view).unwrap();
+    let draw = |mask_edges| {
+        let options = SamplerOptions {
+            rays: 4000,
+            mask_edges,
+            ..SamplerOptions::default()
+        };
+        RaySampler::new(5, options)
+            .sample_prepared(&p, frame, view)
+            .unwrap()
+    };
+    let on_band = |rays: &anerf_core::render::HostRays, k: usize| {
+        let [u, v] = rays.pixels[k];
+        band[(v * cam.width + u) as usize]
+    };
+    let unlabelled = draw(MaskEdges::Unlabelled);
+    assert_eq!(unlabelled.edge.len(), unlabelled.len());
+    let mut edge_rays = 0;
+    for k in 0..unlabelled.len() {
+        assert_eq!(unlabelled.edge[k], on_band(&unlabelled, k), "ray {k}");
+        if unlabelled.edge[k] {
+            edge_rays += 1;
+            assert!(!unlabelled.foreground[k]);
+            assert_eq!(unlabelled.colors[k], [0.0; 3]);
+        }
+    }
+    // The band is a few percent of the box's pixels, drawn by the uniform half of the rays.
+    assert!(edge_rays > 10, "{edge_rays} of 4000 rays on the band");
+    // Skipped, the band is never drawn; trained, it is drawn with its labels (no ray is unlabelled).
+    let skipped = draw(MaskEdges::Skip);
+    assert!((0..skipped.len()).all(|k| !on_band(&skipped, k) && !skipped.edge[k]));
+    let trained = draw(MaskEdges::Train);
+    assert!((0..trained.len()).any(|k| on_band(&trained, k)));
+    assert!(trained.edge.iter().all(|&e| !e));
 }
 
 #[test]

@@ -13,23 +13,8 @@ use anerf_data::synthetic::{write_subject, PoseNoise, SyntheticSpec, SyntheticSu
 use anerf_data::{load_zju_mocap, LoadOptions, Subject};
 use glam::{Vec2, Vec3};
 
-/// Every file under `root`, relative to it, sorted.
-fn files_under(root: &Path) -> Vec<PathBuf> {
-    let mut out = Vec::new();
-    let mut stack = vec![root.to_path_buf()];
-    while let Some(d) = stack.pop() {
-        for e in std::fs::read_dir(&d).unwrap() {
-            let p = e.unwrap().path();
-            if p.is_dir() {
-                stack.push(p);
-            } else {
-                out.push(p.strip_prefix(root).unwrap().to_path_buf());
-            }
-        }
-    }
-    out.sort();
-    out
-}
+mod common;
+use common::files_under;
 
 fn same_bytes(a: &Path, b: &Path) -> bool {
     std::fs::read(a).unwrap() == std::fs::read(b).unwrap()

@@ -3,13 +3,13 @@
 
 mod common;
 
-use std::path::{Path, PathBuf};
+use std::path::Path;
 
 use anerf_data::synthetic::{
     write_subject, ClothingSpec, Lighting, StudioLights, SynthError, SyntheticSpec,
     SyntheticSummary,
 };
-use common::{array, f64s, flat, ordered, relative};
+use common::{array, f64s, files_under, flat, ordered, relative};
 use serde_json::{json, Value};
 
 /// What each file of the subject must hold, stated from the summary and the ZJU-MoCap layout.
@@ -140,23 +140,6 @@ fn posed_vertices_project_inside_the_masks_and_the_images_show_the_body() {
     }
     println!("{outside} of {total} projected vertices fall outside the mask");
     assert_eq!(outside, 0);
-}
-
-fn files_under(root: &Path) -> Vec<PathBuf> {
-    let mut out = Vec::new();
-    let mut stack = vec![root.to_path_buf()];
-    while let Some(d) = stack.pop() {
-        for e in std::fs::read_dir(&d).unwrap() {
-            let p = e.unwrap().path();
-            if p.is_dir() {
-                stack.push(p)
-            } else {
-                out.push(p.strip_prefix(root).unwrap().to_path_buf())
-            }
-        }
-    }
-    out.sort();
-    out
 }
 
 #[test]

@@ -87,11 +87,12 @@ pub fn render_shot(
     let mut hit = vec![false; size.pixels()];
     let mut opacity = vec![0.0; size.pixels()];
     let (mut surviving_samples, mut shaded_samples, mut total_samples) = (0, 0, 0);
+    let inputs = model.posed_frame(shot.inputs);
     for start in (0..rays.rays.len()).step_by(settings.chunk.max(1)) {
         let part = rays
             .rays
             .slice(start..(start + settings.chunk).min(rays.rays.len()));
-        let out = model.march(&part, shot.inputs, canonical, settings.termination);
+        let out = model.march(&part, &inputs, canonical, settings.termination);
         surviving_samples += out.surviving_samples;
         shaded_samples += out.shaded_samples;
         total_samples += out.total_samples;

@@ -292,13 +292,19 @@ impl AnimatableNerf {
     /// The bones `frame` is rendered with: corrected by the refined fit where the model refines it
     /// ([`Self::refined`]), else as given.
     pub fn frame_bones(&self, frame: &FrameInputs) -> BoneMatrices {
-        self.refined(frame)
-            .map_or_else(|| frame.bones.clone(), |f| f.bones)
+        self.posed_frame(frame).bones
     }
 
-    /// `frame` with its bones corrected by the refined fit when it is a training frame of a model that
-    /// refines fits and carries its given fit ([`FrameInputs::basis`]); `None` otherwise.
-    pub(super) fn refined(&self, frame: &FrameInputs) -> Option<FrameInputs> {
+    /// `frame` as this model renders it: its bones corrected once by the refined fit ([`Self::refined`],
+    /// without the basis, so that rendering it again does not recompute them), else `frame` itself. A
+    /// renderer that marches an image in many chunks of rays calls this once per image.
+    pub fn posed_frame(&self, frame: &FrameInputs) -> FrameInputs {
+        self.refined(frame).unwrap_or_else(|| frame.clone())
+    }
+
+    /// `frame` with its bones corrected by the refined fit (and no basis left) when it is a training frame
+    /// of a model that refines fits and carries its given fit ([`FrameInputs::basis`]); `None` otherwise.
+    fn refined(&self, frame: &FrameInputs) -> Option<FrameInputs> {
         let (Some(pose), Some(basis), FrameCode::Training(f)) =
             (&self.pose, &frame.basis, frame.code)
         else {
@@ -307,6 +313,7 @@ impl AnimatableNerf {
         let c = pose.frame(f);
         Some(FrameInputs {
             bones: basis.bones(c.joints, c.rotation, c.translation),
+            basis: None,
             ..frame.clone()
         })
     }
@@ -554,8 +561,7 @@ impl AnimatableNerf {
         jitter: Option<Tensor<2>>,
         with_consistency: bool,
     ) -> RenderOutput {
-        let refined = self.refined(frame);
-        let frame = refined.as_ref().unwrap_or(frame);
+        let frame = &self.posed_frame(frame);
         let device = rays.origins.device();
         let s = self.config.samples_per_ray;
         let r = rays.len();

@@ -50,8 +50,7 @@ impl AnimatableNerf {
         canonical: &CanonicalInputs,
         termination: f32,
     ) -> MarchedRays {
-        let refined = self.refined(frame);
-        let frame = refined.as_ref().unwrap_or(frame);
+        let frame = &self.posed_frame(frame);
         let s = self.config().samples_per_ray;
         let r = rays.len();
         let depths = sample_depths(rays, s);

@@ -162,6 +162,12 @@ fn shifted_model(
         },
         device,
     );
+    lift_density(model, shift)
+}
+
+/// `model` with its raw density shifted up by `shift` (per metre), through the bias of the one-output
+/// density head.
+fn lift_density(model: AnimatableNerf, shift: f32) -> AnimatableNerf {
     let mut list = ParamList(Vec::new());
     model.nerf.visit(&mut list);
     let density_bias = list
@@ -175,6 +181,20 @@ fn shifted_model(
         index: 0,
         delta: shift,
     })
+}
+
+/// A model of `config` (12 samples per ray) whose fields hold values drawn from `seed`'s own stream (the
+/// device's is shared with the tests running at the same time), its density lifted by 2 as [`tiny_model`]'s
+/// is, and its pose corrections (if any) zero.
+fn seeded_model(config: ModelConfig, device: &Device, seed: u64) -> AnimatableNerf {
+    let refinement = config.pose_refinement;
+    let seeded = shifted_model(config, device, 0.0, 12)
+        .map(&mut Seeded(rand::SeedableRng::seed_from_u64(seed)));
+    let mut model = lift_density(seeded, 2.0);
+    if refinement.enabled {
+        model.pose = Some(PoseRefinement::new(refinement, 3, 4, device));
+    }
+    model
 }
 
 /// How many float parameters of `module` received a non-zero gradient, and how many there are.
@@ -431,36 +451,6 @@ impl ModuleMapper for Nudge {
     }
 }
 
-/// Redraws every float parameter from its own seeded stream, uniform within the magnitude it was initialised
-/// with: the device's generator is shared with the tests running at the same time, so the values it gives
-/// depend on them.
-struct Redraw(rand_chacha::ChaCha8Rng);
-
-impl ModuleMapper for Redraw {
-    fn map_float<const D: usize>(&mut self, param: Param<Tensor<D>>) -> Param<Tensor<D>> {
-        use rand::Rng;
-        let requires_grad = param.val().is_require_grad();
-        let (id, t, _) = param.consume();
-        let shape = t.shape();
-        let scale = to_host(t.clone().detach().reshape([shape.num_elements()]))
-            .iter()
-            .fold(0.0f32, |m, v| m.max(v.abs()));
-        let values: Vec<f32> = (0..shape.num_elements())
-            .map(|_| scale * (2.0 * self.0.random::<f32>() - 1.0))
-            .collect();
-        let value = Tensor::<1>::from_floats(values.as_slice(), &t.device()).reshape(shape);
-        Param::initialized(
-            id,
-            if requires_grad {
-                value.require_grad()
-            } else {
-                value
-            },
-        )
-    }
-}
-
-/// Every float parameter: id, element count and rank.
 /// Sets every parameter to seeded uniform values of a fixed scale (1/√fan-in for matrices, 0.1 for vectors),
 /// so a model's values do not depend on the device's random stream, which tests running in parallel share.
 struct Seeded(rand_chacha::ChaCha8Rng);
@@ -490,6 +480,7 @@ impl ModuleMapper for Seeded {
     }
 }
 
+/// Every float parameter: id, element count and rank.
 struct ParamList(Vec<(ParamId, usize, usize)>);
 impl ModuleVisitor for ParamList {
     fn visit_float<const D: usize>(&mut self, param: &Param<Tensor<D>>) {
@@ -537,7 +528,7 @@ fn rendered_colour_gradients_match_finite_differences() {
     let device = cpu_device().autodiff();
     device.seed(4);
     let s = scene(&device, FrameCode::Training(1));
-    let model = tiny_model(&device).map(&mut Redraw(rand::SeedableRng::seed_from_u64(4)));
+    let model = seeded_model(ModelPreset::Tiny.config(), &device, 4);
     let weights = Tensor::<2>::from_floats([[0.7, -0.4, 1.1]], &device);
     let objective = |m: &AnimatableNerf| {
         (m.render(&s.rays, &s.frame, &s.canonical, None, false).rgb * weights.clone()).sum()
@@ -985,7 +976,7 @@ fn pose_corrections_start_at_the_given_render_and_learn_from_the_colours() {
         },
         ..ModelPreset::Tiny.config()
     };
-    let model = tiny_model_with(config, &device);
+    let model = seeded_model(config, &device, 6);
     let refined = FrameInputs {
         basis: Some(s.basis.clone()),
         ..s.frame.clone()
@@ -1059,23 +1050,7 @@ fn fitting_the_corrections_to_images_of_a_known_correction_recovers_it() {
         },
         ..ModelPreset::Tiny.config()
     };
-    // Seeded values (the tiny model's own depend on what other tests drew), the density lifted by 2 as
-    // `shifted_model` lifts it so that the field is visible.
-    let mut model = shifted_model(config, &device, 0.0, 12)
-        .map(&mut Seeded(rand::SeedableRng::seed_from_u64(9)));
-    let mut list = ParamList(Vec::new());
-    model.nerf.visit(&mut list);
-    let density_bias = list
-        .0
-        .iter()
-        .find(|p| p.1 == 1)
-        .expect("the density head's bias")
-        .0;
-    model = model.map(&mut Nudge {
-        target: density_bias,
-        index: 0,
-        delta: 2.0,
-    });
+    let mut model = seeded_model(config, &device, 9);
     model.nerf = model.nerf.no_grad();
     model.blend = model.blend.no_grad();
     let frame = FrameInputs {

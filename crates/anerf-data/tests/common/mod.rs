@@ -3,7 +3,7 @@
 
 #![allow(dead_code)]
 
-use std::path::Path;
+use std::path::{Path, PathBuf};
 use std::process::Command;
 
 use anerf_data::{BodyModel, Subject};
@@ -129,4 +129,22 @@ pub fn lbs_entries(body: &BodyModel) -> Vec<Value> {
         json!({"path": "lbs/weights.npy", "kind": "npy", "expected": array("<f4", &[n, k], json!(body.weights.as_slice()))}),
         json!({"path": "lbs/faces.npy", "kind": "npy", "expected": array("<i8", &[body.faces.len(), 3], json!(body.faces.iter().flatten().collect::<Vec<_>>()))}),
     ]
+}
+
+/// Every file under `root`, relative to it, sorted.
+pub fn files_under(root: &Path) -> Vec<PathBuf> {
+    let mut out = Vec::new();
+    let mut stack = vec![root.to_path_buf()];
+    while let Some(d) = stack.pop() {
+        for e in std::fs::read_dir(&d).unwrap() {
+            let p = e.unwrap().path();
+            if p.is_dir() {
+                stack.push(p);
+            } else {
+                out.push(p.strip_prefix(root).unwrap().to_path_buf());
+            }
+        }
+    }
+    out.sort();
+    out
 }

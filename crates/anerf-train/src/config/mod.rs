@@ -6,6 +6,7 @@ use std::path::{Path, PathBuf};
 use anerf_core::model::ModelConfig;
 use anerf_core::DeviceChoice;
 use anerf_data::prepare::ImageScale;
+pub use anerf_data::MaskEdges;
 use serde::{Deserialize, Serialize};
 use toml::{Table, Value};
 
@@ -233,10 +234,21 @@ pub struct StageConfig {
     pub checkpoint_every: usize,
     pub validate_every: usize,
     pub log_every: usize,
-    /// Stage 1: never draw rays from the 5×5 band around mask edges (the reference's `erode_edge`, for the
-    /// imprecise masks of real captures). Synthetic subjects have exact masks and turn it off.
-    #[serde(default = "default_true")]
-    pub skip_mask_edges: bool,
+    /// Stage 1: what is drawn from the 5×5 band around mask edges: `skip` (never, the reference's
+    /// `erode_edge`, for the imprecise masks of real captures), `train` (with the mask's labels: exact
+    /// masks, as synthetic subjects have) or `unlabelled` (drawn without labels, their opacity pushed
+    /// towards 0 or 1 by [`Self::edge_opacity_weight`]). Earlier versions' boolean `skip_mask_edges` is
+    /// read as `skip` (true) or `train` (false).
+    #[serde(
+        default,
+        alias = "skip_mask_edges",
+        deserialize_with = "MaskEdges::deserialize_compatible"
+    )]
+    pub mask_edges: MaskEdges,
+    /// Stage 1: weight of the mean binary entropy (bits) of the opacity of the unlabelled edge rays
+    /// (`mask_edges = "unlabelled"`); 0 disables it.
+    #[serde(default = "default_edge_opacity_weight")]
+    pub edge_opacity_weight: f32,
     /// Stage 1: weight of the silhouette loss `mean((acc − m)²)`, the rendered opacity against the mask
     /// (1 on body pixels, 0 elsewhere); 0 disables it (the paper fits colours alone).
     #[serde(default)]
@@ -258,8 +270,9 @@ fn default_plateau_tolerance() -> f32 {
     0.01
 }
 
-fn default_true() -> bool {
-    true
+/// The default [`StageConfig::edge_opacity_weight`] (measured in docs/QUALITY.md, "Silhouettes").
+fn default_edge_opacity_weight() -> f32 {
+    0.01
 }
 
 /// `[eval]`.

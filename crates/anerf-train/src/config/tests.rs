@@ -98,6 +98,17 @@ fn errors_name_the_key_and_the_allowed_values() {
         err.contains("cosine") && err.contains("paper") && err.contains("code"),
         "{err}"
     );
+    let err = load(&p, &["train.mask_edges=sometimes".into()])
+        .unwrap_err()
+        .to_string();
+    assert!(
+        err.contains("sometimes") && err.contains(r#""skip", "train" or "unlabelled""#),
+        "{err}"
+    );
+    let err = load(&p, &["train.edge_opacity_weight=-1".into()])
+        .unwrap_err()
+        .to_string();
+    assert!(err.contains("train.edge_opacity_weight"), "{err}");
     let err = load(&p, &["train.typo=1".into()]).unwrap_err().to_string();
     assert!(err.contains("typo"), "{err}");
     let err = load(&p, &["device=tpu".into()]).unwrap_err().to_string();
@@ -249,4 +260,29 @@ fn settings_over_a_value_where_a_section_belongs_are_an_error() {
     };
     let err = load_with(&p, &settings, &[]).unwrap_err().to_string();
     assert!(err.contains("`dataset` is not a section"), "{err}");
+}
+
+/// `train.mask_edges` reads its three names, defaults to the reference's `skip`, and reads earlier versions'
+/// boolean `skip_mask_edges` (true: skip, false: train), in configs and in saved samplers alike.
+#[test]
+fn mask_edges_read_names_and_the_earlier_boolean() {
+    let dir = tempfile::tempdir().unwrap();
+    let p = write(dir.path(), "s.toml", SUBJECT);
+    assert_eq!(load(&p, &[]).unwrap().train.mask_edges, MaskEdges::Skip);
+    for (set, expected) in [
+        ("train.mask_edges=unlabelled", MaskEdges::Unlabelled),
+        ("train.mask_edges=train", MaskEdges::Train),
+        ("train.skip_mask_edges=false", MaskEdges::Train),
+        ("train.skip_mask_edges=true", MaskEdges::Skip),
+    ] {
+        assert_eq!(
+            load(&p, &[set.into()]).unwrap().train.mask_edges,
+            expected,
+            "{set}"
+        );
+    }
+    let saved = r#"{"rays": 64, "body_fraction": 0.5, "skip_mask_edges": false, "near_far_padding": 0.01,
+        "convention": "integer"}"#;
+    let options: anerf_data::SamplerOptions = serde_json::from_str(saved).unwrap();
+    assert_eq!(options.mask_edges, MaskEdges::Train);
 }

@@ -97,17 +97,17 @@ pub fn validate(c: &ExperimentConfig) -> Result<(), ConfigError> {
                 format!("{} (expected ≥ 0; 0 disables)", s.grad_clip),
             );
         }
-        if !(s.mask_weight.is_finite() && s.mask_weight >= 0.0) {
-            return bad(
-                &format!("{name}.mask_weight"),
-                format!("{} (expected ≥ 0; 0 disables)", s.mask_weight),
-            );
-        }
-        if !(s.residual_weight.is_finite() && s.residual_weight >= 0.0) {
-            return bad(
-                &format!("{name}.residual_weight"),
-                format!("{} (expected ≥ 0; 0 disables)", s.residual_weight),
-            );
+        for (key, weight) in [
+            ("mask_weight", s.mask_weight),
+            ("residual_weight", s.residual_weight),
+            ("edge_opacity_weight", s.edge_opacity_weight),
+        ] {
+            if !(weight.is_finite() && weight >= 0.0) {
+                return bad(
+                    &format!("{name}.{key}"),
+                    format!("{weight} (expected ≥ 0; 0 disables)"),
+                );
+            }
         }
         if !(s.plateau_tolerance.is_finite() && (0.0..1.0).contains(&s.plateau_tolerance)) {
             return bad(

@@ -54,6 +54,7 @@ impl Plateau {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::config::MaskEdges;
 
     #[test]
     fn a_plateau_stops_after_its_patience_and_progress_resets_it() {
@@ -95,7 +96,8 @@ mod tests {
             checkpoint_every: 1,
             validate_every: 1,
             log_every: 1,
-            skip_mask_edges: true,
+            mask_edges: MaskEdges::Skip,
+            edge_opacity_weight: 0.01,
             mask_weight: 0.0,
             residual_weight: 0.0,
             plateau_steps: 0,
