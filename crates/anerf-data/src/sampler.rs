@@ -27,13 +27,10 @@ pub enum MaskEdges {
     /// Never drawn (the reference): the mask's errors are not learned, and the edge is not trained either.
     #[default]
     Skip,
-    /// Drawn without colour or label ([`HostRays::edge`] marks them): the loss asks only that the ray be
-    /// opaque or empty, so the silhouette is sharp where the other views and the trusted pixels put it.
-    Unlabelled,
 }
 
 impl MaskEdges {
-    /// Reads the setting as written today (`"skip"`, `"train"`, `"unlabelled"`) or as the boolean
+    /// Reads the setting as written today (`"skip"`, `"train"`) or as the boolean
     /// `skip_mask_edges` of earlier versions' configs and checkpoints (`true` skips, `false` trains).
     pub fn deserialize_compatible<'de, D: serde::Deserializer<'de>>(
         d: D,
@@ -42,7 +39,7 @@ impl MaskEdges {
         impl serde::de::Visitor<'_> for Either {
             type Value = MaskEdges;
             fn expecting(&self, f: &mut std::fmt::Formatter) -> std::fmt::Result {
-                f.write_str(r#""skip", "train" or "unlabelled""#)
+                f.write_str(r#""skip" or "train""#)
             }
             fn visit_bool<E: serde::de::Error>(self, skip: bool) -> Result<MaskEdges, E> {
                 Ok(if skip {
@@ -55,7 +52,6 @@ impl MaskEdges {
                 match name {
                     "skip" => Ok(MaskEdges::Skip),
                     "train" => Ok(MaskEdges::Train),
-                    "unlabelled" => Ok(MaskEdges::Unlabelled),
                     _ => Err(E::invalid_value(serde::de::Unexpected::Str(name), &self)),
                 }
             }
@@ -168,7 +164,7 @@ impl RaySampler {
             .pixels()
             .map(|p| if p[0] != 0 { BODY } else { BACKGROUND })
             .collect();
-        if self.options.mask_edges != MaskEdges::Train {
+        if self.options.mask_edges == MaskEdges::Skip {
             let computed;
             let band = match view.edge {
                 Some(band) => band,
@@ -188,16 +184,15 @@ impl RaySampler {
             .filter(|&i| bound[i] && classes[i] == BODY)
             .map(|i| i as u32)
             .collect();
-        let drawn_edges = self.options.mask_edges == MaskEdges::Unlabelled;
         let boxed: Vec<u32> = (0..classes.len())
-            .filter(|&i| bound[i] && (classes[i] != EDGE || drawn_edges))
+            .filter(|&i| bound[i] && classes[i] != EDGE)
             .map(|i| i as u32)
             .collect();
         if boxed.is_empty() {
             return Err(SamplerError::EmptyBox);
         }
         let gt = |i: usize| -> [f32; 3] {
-            if bound[i] && classes[i] == BODY {
+            if bound[i] && classes[i] != BACKGROUND {
                 view.image.as_raw()[3 * i..3 * i + 3]
                     .try_into()
                     .expect("3 channels")
@@ -233,7 +228,6 @@ impl RaySampler {
                     let i = i as usize;
                     push_ray(&mut out, &ray, hit.near, hit.far, gt(i), [u, v]);
                     out.foreground.push(bound[i] && classes[i] == BODY);
-                    out.edge.push(classes[i] == EDGE);
                 }
             }
         }

@@ -129,45 +129,34 @@ fn training_rays_follow_the_reference_scheme() {
 }
 
 #[test]
-fn unlabelled_edge_rays_come_from_the_band_and_carry_no_label() {
+fn a_trained_band_is_drawn_with_the_masks_labels() {
     let dir = tempfile::tempdir().unwrap();
     let p = prepared(dir.path());
     let (frame, view) = (FrameId(1), ViewId(2));
     let cam = &p.cameras[view.0];
-    let (_, band) = p.mask_and_edge(frame, view).unwrap();
-    let draw = |mask_edges| {
-        let options = SamplerOptions {
-            rays: 4000,
-            mask_edges,
-            ..SamplerOptions::default()
-        };
-        RaySampler::new(5, options)
-            .sample_prepared(&p, frame, view)
-            .unwrap()
+    let img = p.image(frame, view).unwrap();
+    let (mask, band) = p.mask_and_edge(frame, view).unwrap();
+    let options = SamplerOptions {
+        rays: 4000,
+        mask_edges: MaskEdges::Train,
+        ..SamplerOptions::default()
     };
-    let on_band = |rays: &anerf_core::render::HostRays, k: usize| {
+    let rays = RaySampler::new(5, options)
+        .sample_prepared(&p, frame, view)
+        .unwrap();
+    let mut on_band = 0;
+    for k in 0..rays.len() {
         let [u, v] = rays.pixels[k];
-        band[(v * cam.width + u) as usize]
-    };
-    let unlabelled = draw(MaskEdges::Unlabelled);
-    assert_eq!(unlabelled.edge.len(), unlabelled.len());
-    let mut edge_rays = 0;
-    for k in 0..unlabelled.len() {
-        assert_eq!(unlabelled.edge[k], on_band(&unlabelled, k), "ray {k}");
-        if unlabelled.edge[k] {
-            edge_rays += 1;
-            assert!(!unlabelled.foreground[k]);
-            assert_eq!(unlabelled.colors[k], [0.0; 3]);
+        if band[(v * cam.width + u) as usize] {
+            on_band += 1;
+            let fg = mask.get_pixel(u, v)[0] != 0;
+            assert_eq!(rays.foreground[k], fg, "foreground flag of {u},{v}");
+            let expect = if fg { img.get_pixel(u, v).0 } else { [0.0; 3] };
+            assert_eq!(rays.colors[k], expect, "target colour of {u},{v}");
         }
     }
     // The band is a few percent of the box's pixels, drawn by the uniform half of the rays.
-    assert!(edge_rays > 10, "{edge_rays} of 4000 rays on the band");
-    // Skipped, the band is never drawn; trained, it is drawn with its labels (no ray is unlabelled).
-    let skipped = draw(MaskEdges::Skip);
-    assert!((0..skipped.len()).all(|k| !on_band(&skipped, k) && !skipped.edge[k]));
-    let trained = draw(MaskEdges::Train);
-    assert!((0..trained.len()).any(|k| on_band(&trained, k)));
-    assert!(trained.edge.iter().all(|&e| !e));
+    assert!(on_band > 10, "{on_band} of 4000 rays on the band");
 }
 
 #[test]

@@ -21,9 +21,6 @@ pub struct HostRays {
     pub pixels: Vec<[u32; 2]>,
     /// Per ray: its pixel is foreground in the mask (empty when rendering without ground truth).
     pub foreground: Vec<bool>,
-    /// Per ray: its pixel lies in the band around the mask's edge and carries no colour or mask label
-    /// (`anerf_data::MaskEdges::Unlabelled`); empty when no ray was drawn there.
-    pub edge: Vec<bool>,
 }
 
 impl HostRays {
@@ -76,12 +73,7 @@ impl HostRays {
             foreground: if self.foreground.is_empty() {
                 Vec::new()
             } else {
-                self.foreground[range.clone()].to_vec()
-            },
-            edge: if self.edge.is_empty() {
-                Vec::new()
-            } else {
-                self.edge[range].to_vec()
+                self.foreground[range].to_vec()
             },
         }
     }
@@ -103,9 +95,6 @@ pub struct RayBatch {
     pub colors: Option<Tensor<2>>,
     /// `[R]` 1 where the ray's pixel is foreground in the mask, 0 elsewhere, when known.
     pub foreground: Option<Tensor<1>>,
-    /// `[R]` 1 where the ray carries no label ([`HostRays::edge`]), 0 elsewhere; `None` when every ray has
-    /// one.
-    pub edge: Option<Tensor<1>>,
 }
 
 impl RayBatch {
@@ -121,11 +110,10 @@ impl RayBatch {
             far: Tensor::from_floats(rays.far.as_slice(), device),
             colors: (!rays.colors.is_empty())
                 .then(|| from_rows(rays.colors.as_flattened(), n, 3, device)),
-            foreground: (!rays.foreground.is_empty()).then(|| indicator(&rays.foreground, device)),
-            edge: rays
-                .edge
-                .contains(&true)
-                .then(|| indicator(&rays.edge, device)),
+            foreground: (!rays.foreground.is_empty()).then(|| {
+                let values: Vec<f32> = rays.foreground.iter().map(|&f| f as u8 as f32).collect();
+                Tensor::from_floats(values.as_slice(), device)
+            }),
         }
     }
 
@@ -138,10 +126,4 @@ impl RayBatch {
     pub fn is_empty(&self) -> bool {
         self.len() == 0
     }
-}
-
-/// `[R]` 1 where `flags` is set, 0 elsewhere.
-fn indicator(flags: &[bool], device: &Device) -> Tensor<1> {
-    let values: Vec<f32> = flags.iter().map(|&f| f32::from(u8::from(f))).collect();
-    Tensor::from_floats(values.as_slice(), device)
 }

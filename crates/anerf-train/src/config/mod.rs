@@ -235,20 +235,15 @@ pub struct StageConfig {
     pub validate_every: usize,
     pub log_every: usize,
     /// Stage 1: what is drawn from the 5×5 band around mask edges: `skip` (never, the reference's
-    /// `erode_edge`, for the imprecise masks of real captures), `train` (with the mask's labels: exact
-    /// masks, as synthetic subjects have) or `unlabelled` (drawn without labels, their opacity pushed
-    /// towards 0 or 1 by [`Self::edge_opacity_weight`]). Earlier versions' boolean `skip_mask_edges` is
-    /// read as `skip` (true) or `train` (false).
+    /// `erode_edge`, for the imprecise masks of real captures) or `train` (with the mask's labels: exact
+    /// masks, as synthetic subjects have). Earlier versions' boolean `skip_mask_edges` is read as `skip`
+    /// (true) or `train` (false).
     #[serde(
         default,
         alias = "skip_mask_edges",
         deserialize_with = "MaskEdges::deserialize_compatible"
     )]
     pub mask_edges: MaskEdges,
-    /// Stage 1: weight of the mean binary entropy (bits) of the opacity of the unlabelled edge rays
-    /// (`mask_edges = "unlabelled"`); 0 disables it.
-    #[serde(default = "default_edge_opacity_weight")]
-    pub edge_opacity_weight: f32,
     /// Stage 1: weight of the silhouette loss `mean((acc − m)²)`, the rendered opacity against the mask
     /// (1 on body pixels, 0 elsewhere); 0 disables it (the paper fits colours alone).
     #[serde(default)]
@@ -267,11 +262,6 @@ pub struct StageConfig {
 }
 
 fn default_plateau_tolerance() -> f32 {
-    0.01
-}
-
-/// The default [`StageConfig::edge_opacity_weight`] (measured in docs/QUALITY.md, "Silhouettes").
-fn default_edge_opacity_weight() -> f32 {
     0.01
 }
 

@@ -102,13 +102,9 @@ fn errors_name_the_key_and_the_allowed_values() {
         .unwrap_err()
         .to_string();
     assert!(
-        err.contains("sometimes") && err.contains(r#""skip", "train" or "unlabelled""#),
+        err.contains("sometimes") && err.contains(r#""skip" or "train""#),
         "{err}"
     );
-    let err = load(&p, &["train.edge_opacity_weight=-1".into()])
-        .unwrap_err()
-        .to_string();
-    assert!(err.contains("train.edge_opacity_weight"), "{err}");
     let err = load(&p, &["train.typo=1".into()]).unwrap_err().to_string();
     assert!(err.contains("typo"), "{err}");
     let err = load(&p, &["device=tpu".into()]).unwrap_err().to_string();
@@ -262,7 +258,7 @@ fn settings_over_a_value_where_a_section_belongs_are_an_error() {
     assert!(err.contains("`dataset` is not a section"), "{err}");
 }
 
-/// `train.mask_edges` reads its three names, defaults to the reference's `skip`, and reads earlier versions'
+/// `train.mask_edges` reads its two names, defaults to the reference's `skip`, and reads earlier versions'
 /// boolean `skip_mask_edges` (true: skip, false: train), in configs and in saved samplers alike.
 #[test]
 fn mask_edges_read_names_and_the_earlier_boolean() {
@@ -270,7 +266,6 @@ fn mask_edges_read_names_and_the_earlier_boolean() {
     let p = write(dir.path(), "s.toml", SUBJECT);
     assert_eq!(load(&p, &[]).unwrap().train.mask_edges, MaskEdges::Skip);
     for (set, expected) in [
-        ("train.mask_edges=unlabelled", MaskEdges::Unlabelled),
         ("train.mask_edges=train", MaskEdges::Train),
         ("train.skip_mask_edges=false", MaskEdges::Train),
         ("train.skip_mask_edges=true", MaskEdges::Skip),

@@ -100,7 +100,6 @@ pub fn validate(c: &ExperimentConfig) -> Result<(), ConfigError> {
         for (key, weight) in [
             ("mask_weight", s.mask_weight),
             ("residual_weight", s.residual_weight),
-            ("edge_opacity_weight", s.edge_opacity_weight),
         ] {
             if !(weight.is_finite() && weight >= 0.0) {
                 return bad(

@@ -97,7 +97,6 @@ mod tests {
             validate_every: 1,
             log_every: 1,
             mask_edges: MaskEdges::Skip,
-            edge_opacity_weight: 0.01,
             mask_weight: 0.0,
             residual_weight: 0.0,
             plateau_steps: 0,

@@ -147,7 +147,6 @@ fn fresh_start(exp: &Experiment, cfg: &StageConfig) -> (AnimatableNerf, TrainerS
 
 /// One stage-1 step's rays on the host: a random training frame and view, the sampled rays, their depth
 /// jitter, and the frame's inputs on each replica's device.
-#[derive(Clone)]
 struct RayStep {
     frame: FrameId,
     view: ViewId,
@@ -321,9 +320,12 @@ impl ShardedStep for Stage1<'_> {
         let device = self.exp.replica_device(shard.index);
         let part = shard.part(batch.rays.len());
         let samples = model_cfg.samples_per_ray;
-        let host_rays = batch.rays.slice(part.clone());
-        let rays = RayBatch::new(&host_rays, batch.frame, batch.view, device);
-        let edge_rays = host_rays.edge.iter().filter(|&&e| e).count();
+        let rays = RayBatch::new(
+            &batch.rays.slice(part.clone()),
+            batch.frame,
+            batch.view,
+            device,
+        );
         let jitter = from_rows(
             &batch.jitter[part.start * samples..part.end * samples],
             part.len(),
@@ -338,20 +340,9 @@ impl ShardedStep for Stage1<'_> {
             model_cfg.neural_blend_weights,
         );
         let colors = rays.colors.clone().expect("training rays carry colours");
-        // Rays of the mask's edge band carry no label: no colour or silhouette term, only the pull of their
-        // opacity towards 0 or 1.
-        let labelled = rays.edge.clone().map(|e| e.neg().add_scalar(1.0));
-        let squared = squared_error_sum(
-            out.rgb,
-            colors,
-            labelled.clone().map(|l| l.unsqueeze_dim(1)),
-        );
+        let squared = squared_error_sum(out.rgb, colors);
         let silhouette = match (&rays.foreground, cfg.mask_weight > 0.0) {
-            (Some(mask), true) => Some(squared_error_sum(out.acc.clone(), mask.clone(), labelled)),
-            _ => None,
-        };
-        let edge_entropy = match (&rays.edge, cfg.edge_opacity_weight > 0.0) {
-            (Some(edge), true) => Some((binary_entropy(out.acc.clone()) * edge.clone()).sum()),
+            (Some(mask), true) => Some(squared_error_sum(out.acc.clone(), mask.clone())),
             _ => None,
         };
         let consistency = out
@@ -374,16 +365,9 @@ impl ShardedStep for Stage1<'_> {
         // term kept, times zero, so that every replica's graph holds the same parameters, as the
         // all-reduce needs).
         let n = shard.count as f32;
-        let labelled_rays = part.len() - edge_rays;
-        let (rays_total, edge_total, consistency, residual_total) = if shard.count == 1 {
+        let (rays_total, consistency, residual_total) = if shard.count == 1 {
             let consistency = consistency.map(|c| (c.sum, c.selected));
-            let residual_total = residual_entries as f32;
-            (
-                labelled_rays as f32,
-                edge_rays as f32,
-                consistency,
-                residual_total,
-            )
+            (part.len() as f32, consistency, residual_entries as f32)
         } else {
             let (own_positive, own_densest) = match &out.consistency {
                 Some(c) => {
@@ -394,12 +378,7 @@ impl ShardedStep for Stage1<'_> {
             };
             let totals = shard.sum(
                 0,
-                &[
-                    labelled_rays as f64,
-                    own_positive,
-                    residual_entries as f64,
-                    edge_rays as f64,
-                ],
+                &[part.len() as f64, own_positive, residual_entries as f64],
             );
             let densest = shard.max(1, own_densest);
             // With no positive sample anywhere, the shards holding the batch's densest (one, but for ties).
@@ -414,22 +393,12 @@ impl ShardedStep for Stage1<'_> {
                 let selected = Tensor::<1>::from_floats([selected as f32], device);
                 (c.sum * weight as f32, selected)
             });
-            (
-                totals[0] as f32,
-                totals[3] as f32,
-                consistency,
-                totals[2] as f32,
-            )
+            (totals[0] as f32, consistency, totals[2] as f32)
         };
-        let rays_total = rays_total.max(1.0);
         let mse = squared / (3.0 * rays_total) * n;
         let colour_loss = match silhouette {
             Some(s) => mse.clone() + s / rays_total * (cfg.mask_weight * n),
             None => mse.clone(),
-        };
-        let colour_loss = match edge_entropy {
-            Some(h) => colour_loss + h / edge_total.max(1.0) * (cfg.edge_opacity_weight * n),
-            None => colour_loss,
         };
         let blend = consistency.map(|(sum, selected)| {
             let consistency = sum / (selected.clamp_min(1.0) * joints as f32) * n;
@@ -492,29 +461,10 @@ impl Stage1<'_> {
     }
 }
 
-/// `Σ (a − b)²` over every entry, each row weighted by `rows` (1 for a labelled ray, 0 for an unlabelled
-/// one; broadcast over a row's entries) where given: the numerator of the colour MSE (`[R, 3]` colours)
-/// and of the silhouette term (the rendered opacity `[R]` against the rays' foreground mask `[R]`, 1 on
-/// the body).
-fn squared_error_sum<const D: usize>(
-    a: Tensor<D>,
-    b: Tensor<D>,
-    rows: Option<Tensor<D>>,
-) -> Tensor<1> {
-    let squared = (a - b).powf_scalar(2.0);
-    match rows {
-        Some(w) => (squared * w).sum(),
-        None => squared.sum(),
-    }
-}
-
-/// The binary entropy of each ray's opacity `[R]`, in bits: 0 for an opaque or an empty ray, 1 at one
-/// half. Its gradient pushes an opacity away from one half towards the nearer of 0 and 1: the
-/// regulariser that makes a soft halo either body or background (Plenoxels' and NeuS's mask entropy).
-fn binary_entropy(acc: Tensor<1>) -> Tensor<1> {
-    let a = acc.clamp(1e-5, 1.0 - 1e-5);
-    let b = a.clone().neg().add_scalar(1.0);
-    (a.clone() * a.log() + b.clone() * b.log()) * (-std::f32::consts::LOG2_E)
+/// `Σ (a − b)²` over every entry: the numerator of the colour MSE (`[R, 3]` colours) and of the silhouette
+/// term (the rendered opacity `[R]` against the rays' foreground mask `[R]`, 1 on the body).
+fn squared_error_sum<const D: usize>(a: Tensor<D>, b: Tensor<D>) -> Tensor<1> {
+    (a - b).powf_scalar(2.0).sum()
 }
 
 #[cfg(test)]
@@ -551,7 +501,6 @@ mod tests {
             "train.batch=256",
             "train.mask_weight=0.1",
             "train.residual_weight=0.01",
-            "train.mask_edges=unlabelled",
         ]
         .map(String::from);
         let config = config::assemble(config::demo_table(), &settings, &set).unwrap();
@@ -570,11 +519,6 @@ mod tests {
             state,
         };
         let batch = step.batch(3).unwrap();
-        let edge_rays = batch.rays.edge.iter().filter(|&&e| e).count();
-        assert!(
-            edge_rays > 0,
-            "the batch draws unlabelled rays of the mask's edge"
-        );
         let split = |count: usize| {
             let step = &step;
             run_shards(count, |shard| {
@@ -593,18 +537,6 @@ mod tests {
             whole.0.blend > 0.0 && whole.0.mse > 0.0,
             "every term is present"
         );
-        // The edge rays' colours and mask labels are not used.
-        let mut relabelled = batch.clone();
-        for k in 0..relabelled.rays.len() {
-            if relabelled.rays.edge[k] {
-                relabelled.rays.colors[k] = [1.0, 0.5, 1.0];
-                relabelled.rays.foreground[k] = true;
-            }
-        }
-        let values = run_shards(1, |shard| {
-            step.shard_loss(&relabelled, &shard, &model).unwrap().1
-        });
-        assert_eq!(values[0].loss, whole.0.loss);
         let shards = split(3);
         let mean =
             |f: &dyn Fn(&StepValues) -> f32| shards.iter().map(|(v, _)| f(v)).sum::<f32>() / 3.0;
@@ -640,31 +572,11 @@ mod tests {
         let device = cpu_device();
         let acc = Tensor::<1>::from_floats([0.2, 0.9, 1.0, 0.0], &device);
         let mask = Tensor::<1>::from_floats([0.0, 1.0, 1.0, 1.0], &device);
-        let got = to_host(squared_error_sum(acc.clone(), mask.clone(), None))[0];
+        let got = to_host(squared_error_sum(acc, mask))[0];
         assert!((got - (0.04 + 0.01 + 0.0 + 1.0)).abs() < 1e-6, "{got}");
-        // An unlabelled row adds nothing.
-        let labelled = Tensor::<1>::from_floats([1.0, 1.0, 1.0, 0.0], &device);
-        let got = to_host(squared_error_sum(acc, mask, Some(labelled)))[0];
-        assert!((got - (0.04 + 0.01)).abs() < 1e-6, "{got}");
         let rgb = Tensor::<2>::from_floats([[0.5, 0.0, 1.0], [0.25, 0.25, 0.25]], &device);
         let target = Tensor::<2>::from_floats([[0.0, 0.0, 0.0], [0.25, 0.75, 0.25]], &device);
-        let got = to_host(squared_error_sum(rgb.clone(), target.clone(), None))[0];
+        let got = to_host(squared_error_sum(rgb, target))[0];
         assert!((got - (0.25 + 1.0 + 0.25)).abs() < 1e-6, "{got}");
-        let rows = Tensor::<2>::from_floats([[0.0], [1.0]], &device);
-        let got = to_host(squared_error_sum(rgb, target, Some(rows)))[0];
-        assert!((got - 0.25).abs() < 1e-6, "{got}");
-    }
-
-    #[test]
-    fn binary_entropy_is_one_bit_at_one_half_and_none_at_zero_or_one() {
-        let device = cpu_device();
-        let acc = Tensor::<1>::from_floats([0.5, 0.0, 1.0, 0.25, 0.9], &device);
-        let got = to_host(binary_entropy(acc));
-        let h = |p: f64| -(p * p.log2() + (1.0 - p) * (1.0 - p).log2());
-        let expected = [1.0, 0.0, 0.0, h(0.25), h(0.9)];
-        for (g, e) in got.iter().zip(expected) {
-            // The clamp to [1e-5, 1 − 1e-5] leaves about 2e-4 bits at 0 and 1.
-            assert!((*g as f64 - e).abs() < 3e-4, "{got:?} vs {expected:?}");
-        }
     }
 }
