@@ -148,21 +148,24 @@ fn tiny_model_with(config: ModelConfig, device: &Device) -> AnimatableNerf {
 
 /// A model of `config` with its raw density shifted up by `shift` (per metre), `samples` per ray.
 fn shifted_model(
-    mut config: ModelConfig,
+    config: ModelConfig,
     device: &Device,
     shift: f32,
     samples: usize,
 ) -> AnimatableNerf {
+    lift_density(new_model(config, device, samples), shift)
+}
+
+/// What the test models are built for: the scene's 3 training frames and 4 joints.
+const SIZES: ModelSizes = ModelSizes {
+    training_frames: 3,
+    joints: 4,
+};
+
+/// A fresh model of `config` with `samples` per ray.
+fn new_model(mut config: ModelConfig, device: &Device, samples: usize) -> AnimatableNerf {
     config.samples_per_ray = samples;
-    let model = AnimatableNerf::new(
-        &config,
-        ModelSizes {
-            training_frames: 3,
-            joints: 4,
-        },
-        device,
-    );
-    lift_density(model, shift)
+    AnimatableNerf::new(&config, SIZES, device)
 }
 
 /// `model` with its raw density shifted up by `shift` (per metre), through the bias of the one-output
@@ -188,11 +191,16 @@ fn lift_density(model: AnimatableNerf, shift: f32) -> AnimatableNerf {
 /// is, and its pose corrections (if any) zero.
 fn seeded_model(config: ModelConfig, device: &Device, seed: u64) -> AnimatableNerf {
     let refinement = config.pose_refinement;
-    let seeded = shifted_model(config, device, 0.0, 12)
-        .map(&mut Seeded(rand::SeedableRng::seed_from_u64(seed)));
+    let seeded =
+        new_model(config, device, 12).map(&mut Seeded(rand::SeedableRng::seed_from_u64(seed)));
     let mut model = lift_density(seeded, 2.0);
     if refinement.enabled {
-        model.pose = Some(PoseRefinement::new(refinement, 3, 4, device));
+        model.pose = Some(PoseRefinement::new(
+            refinement,
+            SIZES.training_frames,
+            SIZES.joints,
+            device,
+        ));
     }
     model
 }
@@ -504,11 +512,7 @@ fn a_new_model_and_its_novel_field_hold_every_parameter_drawn() {
     let device = cpu_device().autodiff();
     let mut config = ModelPreset::Tiny.config();
     config.pose_refinement.enabled = true;
-    let sizes = ModelSizes {
-        training_frames: 3,
-        joints: 4,
-    };
-    let model = AnimatableNerf::new(&config, sizes, &device);
+    let model = AnimatableNerf::new(&config, SIZES, &device);
     let count = |m: &AnimatableNerf| {
         let mut undrawn = Undrawn(0);
         m.visit(&mut undrawn);
