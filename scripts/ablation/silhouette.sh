@@ -1,10 +1,13 @@
 #!/usr/bin/env bash
 # Silhouettes (issue 35): one synthetic subject with exact masks and the same images with masks whose edges
 # are wrong by up to a few pixels (`anerf synth --mask-noise`), each trained with the band around the masks'
-# edges skipped (`train.mask_edges = "skip"`, the reference) and trained ("train"). Every variant is trained
+# edges skipped (`train.mask_edges = "skip"`, the reference), trained ("train") and trained with a robust
+# loss ("robust"). Every variant is trained
 # with the `fast` preset and evaluated on all three splits against the exact masks; the second table gives
 # each split's PSNR in the 2-pixel band around the true silhouette, outside it, and the predicted silhouette's
 # area over the true one.
+#
+# The settings compared are EDGES (default "skip train robust"; e.g. EDGES=robust to add one to a table).
 #
 # Usage: silhouette.sh [--preset demo|realistic|realistic-exact] [--noise <px>] [--iterations N]
 #                      [--out <folder>] [--seed N] [-- <extra train flags>]
@@ -17,7 +20,7 @@ NOISY="$OUT/subject-masks-$NOISE"
 degraded "$NOISY" --mask-noise "$NOISE"
 # Every run is evaluated against the exact subject's masks (the images are the same).
 EVAL_FLAGS=(--set "dataset.root=$EXACT" --set "dataset.cache=$OUT/cache-$(basename "$EXACT")")
-for edges in skip train; do
+for edges in ${EDGES:-skip train robust}; do
     variant "exact-$edges" "$EXACT" --set "train.mask_edges=$edges"
     variant "masks-$NOISE-$edges" "$NOISY" --set "train.mask_edges=$edges"
 done

@@ -24,8 +24,12 @@ use crate::prepare::PreparedSubject;
 pub enum MaskEdges {
     /// Drawn like every pixel, with the mask's colour and label: for exact masks (synthetic subjects).
     Train,
-    /// Never drawn (the reference): the mask's errors are not learned, and the edge is not trained either.
+    /// Drawn like every pixel and marked ([`HostRays::edge`]), so that training weighs them with a robust
+    /// loss: where the mask is right the edge is trained almost as with `Train`, where it is wrong its
+    /// pull is bounded and the rest of the data decides. The default: masks of unknown quality.
     #[default]
+    Robust,
+    /// Never drawn (the reference): the mask's errors are not learned, and the edge is not trained either.
     Skip,
 }
 
@@ -39,7 +43,7 @@ impl MaskEdges {
         impl serde::de::Visitor<'_> for Either {
             type Value = MaskEdges;
             fn expecting(&self, f: &mut std::fmt::Formatter) -> std::fmt::Result {
-                f.write_str(r#""skip" or "train""#)
+                f.write_str(r#""skip", "train" or "robust""#)
             }
             fn visit_bool<E: serde::de::Error>(self, skip: bool) -> Result<MaskEdges, E> {
                 Ok(if skip {
@@ -52,6 +56,7 @@ impl MaskEdges {
                 match name {
                     "skip" => Ok(MaskEdges::Skip),
                     "train" => Ok(MaskEdges::Train),
+                    "robust" => Ok(MaskEdges::Robust),
                     _ => Err(E::invalid_value(serde::de::Unexpected::Str(name), &self)),
                 }
             }
@@ -164,15 +169,15 @@ impl RaySampler {
             .pixels()
             .map(|p| if p[0] != 0 { BODY } else { BACKGROUND })
             .collect();
+        let computed;
+        let band = match view.edge {
+            Some(band) => band,
+            None => {
+                computed = edge_band(view.mask);
+                &computed
+            }
+        };
         if self.options.mask_edges == MaskEdges::Skip {
-            let computed;
-            let band = match view.edge {
-                Some(band) => band,
-                None => {
-                    computed = edge_band(view.mask);
-                    &computed
-                }
-            };
             for (c, &edge) in classes.iter_mut().zip(band) {
                 if edge {
                     *c = EDGE;
@@ -228,6 +233,7 @@ impl RaySampler {
                     let i = i as usize;
                     push_ray(&mut out, &ray, hit.near, hit.far, gt(i), [u, v]);
                     out.foreground.push(bound[i] && classes[i] == BODY);
+                    out.edge.push(band[i]);
                 }
             }
         }

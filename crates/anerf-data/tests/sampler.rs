@@ -115,6 +115,7 @@ fn training_rays_follow_the_reference_scheme() {
             bound[i] && !band[i],
             "pixel {u},{v} is outside the box projection or on the mask edge"
         );
+        assert!(!rays.edge[k], "pixel {u},{v} is marked as on the band");
         assert!(rays.near[k] < rays.far[k]);
         let fg = mask.get_pixel(u, v)[0] != 0;
         on_body += fg as usize;
@@ -128,26 +129,34 @@ fn training_rays_follow_the_reference_scheme() {
     assert!((250..450).contains(&on_body), "{on_body} rays on the body");
 }
 
+/// `train` and `robust` draw the band like every pixel, with the mask's colour and label, and mark each
+/// ray's membership of the band as the prepared band says; both draw the same rays from the same seed.
 #[test]
-fn a_trained_band_is_drawn_with_the_masks_labels() {
+fn a_trained_band_is_drawn_with_the_masks_labels_and_marked() {
     let dir = tempfile::tempdir().unwrap();
     let p = prepared(dir.path());
     let (frame, view) = (FrameId(1), ViewId(2));
     let cam = &p.cameras[view.0];
     let img = p.image(frame, view).unwrap();
     let (mask, band) = p.mask_and_edge(frame, view).unwrap();
-    let options = SamplerOptions {
-        rays: 4000,
-        mask_edges: MaskEdges::Train,
-        ..SamplerOptions::default()
+    let draw = |mask_edges| {
+        let options = SamplerOptions {
+            rays: 4000,
+            mask_edges,
+            ..SamplerOptions::default()
+        };
+        RaySampler::new(5, options)
+            .sample_prepared(&p, frame, view)
+            .unwrap()
     };
-    let rays = RaySampler::new(5, options)
-        .sample_prepared(&p, frame, view)
-        .unwrap();
+    let rays = draw(MaskEdges::Train);
+    assert_eq!(draw(MaskEdges::Robust), rays);
     let mut on_band = 0;
     for k in 0..rays.len() {
         let [u, v] = rays.pixels[k];
-        if band[(v * cam.width + u) as usize] {
+        let in_band = band[(v * cam.width + u) as usize];
+        assert_eq!(rays.edge[k], in_band, "band flag of {u},{v}");
+        if in_band {
             on_band += 1;
             let fg = mask.get_pixel(u, v)[0] != 0;
             assert_eq!(rays.foreground[k], fg, "foreground flag of {u},{v}");

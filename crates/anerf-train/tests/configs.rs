@@ -1,8 +1,9 @@
-//! Every experiment file in `configs/` loads, validates, and selects the frames of the paper's protocol.
+//! Every experiment file in `configs/` loads, validates, and selects the frames and the mask-edge setting of
+//! the paper's protocol.
 
 use std::path::Path;
 
-use anerf_train::config::{self, FrameRange, RangeSet};
+use anerf_train::config::{self, FrameRange, MaskEdges, RangeSet};
 
 fn configs_dir() -> std::path::PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("../../configs")
@@ -22,6 +23,10 @@ fn every_experiment_file_loads_and_validates() {
             {
                 let c =
                     config::load(&path, &[]).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+                // The paper's experiments keep its protocol: the band around mask edges unsampled.
+                if !folder.is_empty() {
+                    assert_eq!(c.train.mask_edges, MaskEdges::Skip, "{}", path.display());
+                }
                 let tpami = config::load(&path, &["dataset.ranges=tpami".into()]);
                 assert!(
                     tpami.is_ok() || c.dataset.tpami.is_none(),

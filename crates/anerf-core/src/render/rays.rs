@@ -21,6 +21,9 @@ pub struct HostRays {
     pub pixels: Vec<[u32; 2]>,
     /// Per ray: its pixel is foreground in the mask (empty when rendering without ground truth).
     pub foreground: Vec<bool>,
+    /// Per ray: its pixel lies in the band around the mask's edge, where masks are least sure (empty when
+    /// unknown).
+    pub edge: Vec<bool>,
 }
 
 impl HostRays {
@@ -70,11 +73,8 @@ impl HostRays {
             } else {
                 self.pixels[range.clone()].to_vec()
             },
-            foreground: if self.foreground.is_empty() {
-                Vec::new()
-            } else {
-                self.foreground[range].to_vec()
-            },
+            foreground: flags(&self.foreground, range.clone()),
+            edge: flags(&self.edge, range),
         }
     }
 }
@@ -95,6 +95,8 @@ pub struct RayBatch {
     pub colors: Option<Tensor<2>>,
     /// `[R]` 1 where the ray's pixel is foreground in the mask, 0 elsewhere, when known.
     pub foreground: Option<Tensor<1>>,
+    /// `[R]` 1 where the ray's pixel lies in the band around the mask's edge, 0 elsewhere, when known.
+    pub edge: Option<Tensor<1>>,
 }
 
 impl RayBatch {
@@ -110,10 +112,8 @@ impl RayBatch {
             far: Tensor::from_floats(rays.far.as_slice(), device),
             colors: (!rays.colors.is_empty())
                 .then(|| from_rows(rays.colors.as_flattened(), n, 3, device)),
-            foreground: (!rays.foreground.is_empty()).then(|| {
-                let values: Vec<f32> = rays.foreground.iter().map(|&f| f as u8 as f32).collect();
-                Tensor::from_floats(values.as_slice(), device)
-            }),
+            foreground: indicator(&rays.foreground, device),
+            edge: indicator(&rays.edge, device),
         }
     }
 
@@ -126,4 +126,21 @@ impl RayBatch {
     pub fn is_empty(&self) -> bool {
         self.len() == 0
     }
+}
+
+/// `flags[range]`, or nothing when the flags are not known.
+fn flags(flags: &[bool], range: std::ops::Range<usize>) -> Vec<bool> {
+    if flags.is_empty() {
+        Vec::new()
+    } else {
+        flags[range].to_vec()
+    }
+}
+
+/// `[R]` 1 where a flag is set, 0 elsewhere; `None` when the flags are not known.
+fn indicator(flags: &[bool], device: &Device) -> Option<Tensor<1>> {
+    (!flags.is_empty()).then(|| {
+        let values: Vec<f32> = flags.iter().map(|&f| f32::from(u8::from(f))).collect();
+        Tensor::from_floats(values.as_slice(), device)
+    })
 }

@@ -234,16 +234,23 @@ pub struct StageConfig {
     pub checkpoint_every: usize,
     pub validate_every: usize,
     pub log_every: usize,
-    /// Stage 1: what is drawn from the 5×5 band around mask edges: `skip` (never, the reference's
-    /// `erode_edge`, for the imprecise masks of real captures) or `train` (with the mask's labels: exact
-    /// masks, as synthetic subjects have). Earlier versions' boolean `skip_mask_edges` is read as `skip`
-    /// (true) or `train` (false).
+    /// Stage 1: what is drawn from the 5×5 band around mask edges: `robust` (the default: with the mask's
+    /// labels, each band ray's loss made robust by [`Self::edge_scale`]), `train` (with the mask's labels
+    /// and the plain loss: exact masks, as synthetic subjects have) or `skip` (never: the reference's
+    /// `erode_edge`, kept by the paper's experiment configs). Earlier versions' boolean `skip_mask_edges` is
+    /// read as `skip` (true) or `train` (false).
     #[serde(
         default,
         alias = "skip_mask_edges",
         deserialize_with = "MaskEdges::deserialize_compatible"
     )]
     pub mask_edges: MaskEdges,
+    /// Stage 1, `mask_edges = "robust"`: a band ray's loss is the pseudo-Huber `2c²(√(1 + e/c²) − 1)` of
+    /// its squared error `e` (colour plus weighted silhouette) with this scale `c`: about `e` for errors
+    /// well below `c²`, growing as `2c·√e` above, so a band label the other views contradict pulls with a
+    /// bounded force.
+    #[serde(default = "default_edge_scale")]
+    pub edge_scale: f32,
     /// Stage 1: weight of the silhouette loss `mean((acc − m)²)`, the rendered opacity against the mask
     /// (1 on body pixels, 0 elsewhere); 0 disables it (the paper fits colours alone).
     #[serde(default)]
@@ -263,6 +270,10 @@ pub struct StageConfig {
 
 fn default_plateau_tolerance() -> f32 {
     0.01
+}
+
+fn default_edge_scale() -> f32 {
+    0.1
 }
 
 /// `[eval]`.

@@ -102,9 +102,18 @@ fn errors_name_the_key_and_the_allowed_values() {
         .unwrap_err()
         .to_string();
     assert!(
-        err.contains("sometimes") && err.contains(r#""skip" or "train""#),
+        err.contains("sometimes") && err.contains(r#""skip", "train" or "robust""#),
         "{err}"
     );
+    for scale in ["0", "-0.1", "nan"] {
+        let err = load(&p, &[format!("train.edge_scale={scale}")])
+            .unwrap_err()
+            .to_string();
+        assert!(
+            err.contains("train.edge_scale") && err.contains("positive, finite"),
+            "{err}"
+        );
+    }
     let err = load(&p, &["train.typo=1".into()]).unwrap_err().to_string();
     assert!(err.contains("typo"), "{err}");
     let err = load(&p, &["device=tpu".into()]).unwrap_err().to_string();
@@ -258,15 +267,16 @@ fn settings_over_a_value_where_a_section_belongs_are_an_error() {
     assert!(err.contains("`dataset` is not a section"), "{err}");
 }
 
-/// `train.mask_edges` reads its two names, defaults to the reference's `skip`, and reads earlier versions'
+/// `train.mask_edges` reads its three names, defaults to `robust`, and reads earlier versions'
 /// boolean `skip_mask_edges` (true: skip, false: train), in configs and in saved samplers alike.
 #[test]
 fn mask_edges_read_names_and_the_earlier_boolean() {
     let dir = tempfile::tempdir().unwrap();
     let p = write(dir.path(), "s.toml", SUBJECT);
-    assert_eq!(load(&p, &[]).unwrap().train.mask_edges, MaskEdges::Skip);
+    assert_eq!(load(&p, &[]).unwrap().train.mask_edges, MaskEdges::Robust);
     for (set, expected) in [
         ("train.mask_edges=train", MaskEdges::Train),
+        ("train.mask_edges=robust", MaskEdges::Robust),
         ("train.skip_mask_edges=false", MaskEdges::Train),
         ("train.skip_mask_edges=true", MaskEdges::Skip),
     ] {

@@ -108,6 +108,12 @@ pub fn validate(c: &ExperimentConfig) -> Result<(), ConfigError> {
                 );
             }
         }
+        if !(s.edge_scale.is_finite() && s.edge_scale > 0.0) {
+            return bad(
+                &format!("{name}.edge_scale"),
+                format!("{} (expected a positive, finite error scale)", s.edge_scale),
+            );
+        }
         if !(s.plateau_tolerance.is_finite() && (0.0..1.0).contains(&s.plateau_tolerance)) {
             return bad(
                 &format!("{name}.plateau_tolerance"),

@@ -101,6 +101,7 @@ mod tests {
             residual_weight: 0.0,
             plateau_steps: 0,
             plateau_tolerance: 0.01,
+            edge_scale: 0.1,
         }
     }
 

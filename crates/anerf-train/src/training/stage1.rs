@@ -21,7 +21,7 @@ use super::seeds::{stream_seed, Stream};
 use super::window::{StepValues, WindowMeans};
 use super::{check_sizes, optimizer, resume_point, StageOutcome, TrainOptions};
 use crate::checkpoint::TrainerState;
-use crate::config::StageConfig;
+use crate::config::{MaskEdges, StageConfig};
 use crate::experiment::Experiment;
 use crate::render::render_view;
 use crate::run_dir::RunDir;
@@ -340,11 +340,7 @@ impl ShardedStep for Stage1<'_> {
             model_cfg.neural_blend_weights,
         );
         let colors = rays.colors.clone().expect("training rays carry colours");
-        let squared = squared_error_sum(out.rgb, colors);
-        let silhouette = match (&rays.foreground, cfg.mask_weight > 0.0) {
-            (Some(mask), true) => Some(squared_error_sum(out.acc.clone(), mask.clone())),
-            _ => None,
-        };
+        let data = RayErrors::new(out.rgb, colors, &out.acc, &rays, cfg);
         let consistency = out
             .consistency
             .as_ref()
@@ -395,11 +391,8 @@ impl ShardedStep for Stage1<'_> {
             });
             (totals[0] as f32, consistency, totals[2] as f32)
         };
-        let mse = squared / (3.0 * rays_total) * n;
-        let colour_loss = match silhouette {
-            Some(s) => mse.clone() + s / rays_total * (cfg.mask_weight * n),
-            None => mse.clone(),
-        };
+        let mse = data.colour / rays_total * n;
+        let colour_loss = data.loss / rays_total * n;
         let blend = consistency.map(|(sum, selected)| {
             let consistency = sum / (selected.clamp_min(1.0) * joints as f32) * n;
             match &residual {
@@ -461,10 +454,48 @@ impl Stage1<'_> {
     }
 }
 
-/// `Σ (a − b)²` over every entry: the numerator of the colour MSE (`[R, 3]` colours) and of the silhouette
-/// term (the rendered opacity `[R]` against the rays' foreground mask `[R]`, 1 on the body).
-fn squared_error_sum<const D: usize>(a: Tensor<D>, b: Tensor<D>) -> Tensor<1> {
-    (a - b).powf_scalar(2.0).sum()
+/// The data terms of a shard's rays, as sums over its rays (each a mean over the batch once divided by the
+/// batch's ray count).
+struct RayErrors {
+    /// `Σ_r mean_c (rgb − target)²`: the colour loss, logged as the training rays' MSE.
+    colour: Tensor<1>,
+    /// `Σ_r ρ_r(e_r)`: `e_r` is the ray's colour error plus `mask_weight · (acc − m)²`; `ρ_r` is the
+    /// identity, or for band rays under `mask_edges = "robust"` the pseudo-Huber `2c²(√(1 + e/c²) − 1)` of
+    /// scale `c = edge_scale`: `e` for small errors, `2c·√e` for large ones, so that a band ray whose
+    /// labels the rest of the data contradicts pulls with a bounded force.
+    loss: Tensor<1>,
+}
+
+impl RayErrors {
+    /// `rgb`, `target`: `[R, 3]`; `acc`: `[R]` rendered opacity.
+    fn new(
+        rgb: Tensor<2>,
+        target: Tensor<2>,
+        acc: &Tensor<1>,
+        rays: &RayBatch,
+        cfg: &StageConfig,
+    ) -> Self {
+        let n = rgb.dims()[0];
+        let colour = (rgb - target).powf_scalar(2.0).sum_dim(1).reshape([n]) / 3.0;
+        let per_ray = match (&rays.foreground, cfg.mask_weight > 0.0) {
+            (Some(mask), true) => {
+                colour.clone() + (acc.clone() - mask.clone()).powf_scalar(2.0) * cfg.mask_weight
+            }
+            _ => colour.clone(),
+        };
+        let loss = match (&rays.edge, cfg.mask_edges) {
+            (Some(edge), MaskEdges::Robust) => {
+                let c2 = cfg.edge_scale * cfg.edge_scale;
+                let robust = ((per_ray.clone() / c2 + 1.0).sqrt() - 1.0) * (2.0 * c2);
+                per_ray.clone() + (robust - per_ray) * edge.clone()
+            }
+            _ => per_ray,
+        };
+        Self {
+            colour: colour.sum(),
+            loss: loss.sum(),
+        }
+    }
 }
 
 #[cfg(test)]
@@ -500,6 +531,7 @@ mod tests {
         let set = [
             "train.batch=256",
             "train.mask_weight=0.1",
+            "train.mask_edges=robust",
             "train.residual_weight=0.01",
         ]
         .map(String::from);
@@ -567,16 +599,93 @@ mod tests {
         );
     }
 
+    /// The data loss against its definition, worked here in f64: each ray's error `e` is its mean squared
+    /// colour error plus `mask_weight · (acc − m)²`; under `robust` a band ray's loss is the pseudo-Huber
+    /// `2c²(√(1 + e/c²) − 1)` of it, so its opacity's gradient is `2 · mask_weight · (acc − m) / √(1 + e/c²)`;
+    /// under `train` the band flags change nothing.
     #[test]
-    fn the_squared_error_sum_adds_every_entrys_square() {
-        let device = cpu_device();
-        let acc = Tensor::<1>::from_floats([0.2, 0.9, 1.0, 0.0], &device);
-        let mask = Tensor::<1>::from_floats([0.0, 1.0, 1.0, 1.0], &device);
-        let got = to_host(squared_error_sum(acc, mask))[0];
-        assert!((got - (0.04 + 0.01 + 0.0 + 1.0)).abs() < 1e-6, "{got}");
-        let rgb = Tensor::<2>::from_floats([[0.5, 0.0, 1.0], [0.25, 0.25, 0.25]], &device);
-        let target = Tensor::<2>::from_floats([[0.0, 0.0, 0.0], [0.25, 0.75, 0.25]], &device);
-        let got = to_host(squared_error_sum(rgb, target))[0];
-        assert!((got - (0.25 + 1.0 + 0.25)).abs() < 1e-6, "{got}");
+    fn band_rays_weigh_their_error_by_the_pseudo_huber_under_robust() {
+        let rgb = [
+            [0.5, 0.0, 1.0],
+            [0.25, 0.25, 0.25],
+            [0.9, 0.8, 0.7],
+            [0.1, 0.1, 0.1],
+        ];
+        let target = [
+            [0.0, 0.0, 0.0],
+            [0.25, 0.75, 0.25],
+            [0.0, 0.0, 0.0],
+            [0.1, 0.2, 0.1],
+        ];
+        let acc = [0.2f32, 0.9, 1.0, 0.05];
+        let foreground = [false, true, false, false];
+        let edge = [false, true, true, true];
+        let host = HostRays {
+            near: vec![1.0; 4],
+            far: vec![2.0; 4],
+            origins: vec![[0.0; 3]; 4],
+            directions: vec![[0.0, 0.0, 1.0]; 4],
+            colors: target.to_vec(),
+            pixels: vec![[0, 0]; 4],
+            foreground: foreground.to_vec(),
+            edge: edge.to_vec(),
+        };
+        let device = cpu_device().autodiff();
+        for edges in ["robust", "train"] {
+            let set = [
+                "train.mask_weight=0.1".to_string(),
+                "train.edge_scale=0.2".to_string(),
+                format!("train.mask_edges={edges}"),
+            ];
+            let cfg = config::assemble(config::demo_table(), &Settings::default(), &set)
+                .unwrap()
+                .train;
+            let rays = RayBatch::new(&host, FrameId(0), ViewId(0), &device);
+            let opacity = Tensor::<1>::from_floats(acc, &device).require_grad();
+            let errors = RayErrors::new(
+                from_rows(rgb.as_flattened(), 4, 3, &device),
+                rays.colors.clone().unwrap(),
+                &opacity,
+                &rays,
+                &cfg,
+            );
+            let (c, w) = (0.2f64, 0.1f64);
+            let (mut colour, mut loss) = (0.0, 0.0);
+            let mut gradient = Vec::new();
+            for r in 0..4 {
+                let squared: f64 = (0..3)
+                    .map(|k| (rgb[r][k] as f64 - target[r][k] as f64).powi(2))
+                    .sum::<f64>()
+                    / 3.0;
+                let miss = acc[r] as f64 - f64::from(u8::from(foreground[r]));
+                let e = squared + w * miss * miss;
+                colour += squared;
+                let slope = if edges == "robust" && edge[r] {
+                    loss += 2.0 * c * c * ((1.0 + e / (c * c)).sqrt() - 1.0);
+                    1.0 / (1.0 + e / (c * c)).sqrt()
+                } else {
+                    loss += e;
+                    1.0
+                };
+                gradient.push((slope * 2.0 * w * miss) as f32);
+            }
+            let got = to_host(errors.colour)[0];
+            assert!(
+                (got as f64 - colour).abs() < 1e-5,
+                "{edges}: colour {got} vs {colour}"
+            );
+            let got = to_host(errors.loss.clone())[0];
+            assert!(
+                (got as f64 - loss).abs() < 1e-5,
+                "{edges}: loss {got} vs {loss}"
+            );
+            let grads = errors.loss.backward();
+            assert_close(
+                &format!("{edges}: opacity gradient"),
+                &to_host(opacity.grad(&grads).unwrap()),
+                &gradient,
+                Tolerance::Relative(1e-4),
+            );
+        }
     }
 }
