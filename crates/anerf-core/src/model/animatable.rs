@@ -92,7 +92,8 @@ pub struct ConsistencyTerms {
     pub canonical: Tensor<2>,
     /// `[M, 1]` 1 where the sample counts: raw density > 0 inside the canonical box, plus the densest sample.
     pub mask: Tensor<2>,
-    /// `[M, 1]` the samples' raw density (detached), which the mask was made from.
+    /// `[M, 1]` the samples' raw density (detached), which the mask was made from (the shards of a
+    /// data-parallel step decide the batch's selection from it).
     pub density: Tensor<2>,
     /// `[M', K]` the frame field's residual `F` at the samples (neural field only), for its penalty.
     pub residual: Option<Tensor<2>>,
@@ -115,17 +116,6 @@ impl ConsistencyTerms {
             density,
             residual,
         }
-    }
-
-    /// `[1]` samples with raw density > 0: the mask's count without its densest-sample guard (which adds a
-    /// sample only where none is positive). Computed when asked, by the shards of a data-parallel step.
-    pub fn positive(&self) -> Tensor<1> {
-        self.density.clone().greater_elem(0.0).float().sum()
-    }
-
-    /// `[1]` the greatest raw density: the densest sample's, which the guard selects.
-    pub fn densest(&self) -> Tensor<1> {
-        self.density.clone().max()
     }
 
     /// `mean(F²)` of the residual (zero without the neural field): the penalty that keeps the learned

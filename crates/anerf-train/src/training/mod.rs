@@ -2,9 +2,11 @@
 //! cadence, validation and progress, and one step per fit — stage 1 fits the canonical radiance field
 //! and the blend-weight fields to the training video (`stage1`); stage 2 fits blend-weight fields for
 //! novel poses against the frozen canonical field, for the run's novel-pose frames or for poses from
-//! files (`stage2`). A stage-1 fit on several devices runs data-parallel (`parallel`).
+//! files (`stage2`). Stage 1's loss is `objective`'s; a stage-1 fit on several devices runs data-parallel
+//! (`parallel`).
 
 mod driver;
+mod objective;
 mod parallel;
 pub mod schedule;
 pub mod seeds;

@@ -16,12 +16,13 @@ use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
 use super::driver::{drive, LoopState, Record, RenderFigures, Single, Step};
+use super::objective::{Objective, TermSums, WeighedTerms};
 use super::parallel::{whole_loss, Replicas, Shard, ShardedStep};
 use super::seeds::{stream_seed, Stream};
 use super::window::{StepValues, WindowMeans};
 use super::{check_sizes, optimizer, resume_point, StageOutcome, TrainOptions};
 use crate::checkpoint::TrainerState;
-use crate::config::{MaskEdges, StageConfig};
+use crate::config::StageConfig;
 use crate::experiment::Experiment;
 use crate::render::render_view;
 use crate::run_dir::RunDir;
@@ -304,9 +305,7 @@ impl ShardedStep for Stage1<'_> {
         })
     }
 
-    /// Each term is a mean over rays or samples: its sum on this shard over the count on every shard, so
-    /// that the shards' losses (times the shard count, as Burn averages their gradients) average to the
-    /// batch's.
+    /// The [`Objective`] of this shard's rays, plus the pose refinement's regulariser.
     fn shard_loss(
         &self,
         batch: &RayStep,
@@ -339,75 +338,9 @@ impl ShardedStep for Stage1<'_> {
             Some(jitter),
             model_cfg.neural_blend_weights,
         );
-        let colors = rays.colors.clone().expect("training rays carry colours");
-        let data = RayErrors::new(out.rgb, colors, &out.acc, &rays, cfg);
-        let consistency = out
-            .consistency
-            .as_ref()
-            .map(|c| c.loss_parts(model_cfg.consistency));
-        let residual = out
-            .consistency
-            .as_ref()
-            .and_then(|c| c.residual.clone())
-            .filter(|_| cfg.residual_weight > 0.0);
-        let joints = out.consistency.as_ref().map_or(1, |c| c.observed.dims()[1]);
-        let residual_entries = residual.as_ref().map_or(0, |r| r.dims().iter().product());
-
-        // The counts over every shard: rays, selected consistency samples, residual entries. One shard
-        // divides by its own (the selected count stays on the device). Several exchange their rays,
-        // positive-density samples and residual entries, and their greatest density: the consistency
-        // mask's guard adds the densest sample only where no sample is positive, which must be decided
-        // for the whole batch. A shard whose own selection the batch's does not hold contributes zero (its
-        // term kept, times zero, so that every replica's graph holds the same parameters, as the
-        // all-reduce needs).
-        let n = shard.count as f32;
-        let (rays_total, consistency, residual_total) = if shard.count == 1 {
-            let consistency = consistency.map(|c| (c.sum, c.selected));
-            (part.len() as f32, consistency, residual_entries as f32)
-        } else {
-            let (own_positive, own_densest) = match &out.consistency {
-                Some(c) => {
-                    let v = to_host(Tensor::cat(vec![c.positive(), c.densest()], 0));
-                    (v[0] as f64, v[1] as f64)
-                }
-                None => (0.0, f64::NEG_INFINITY),
-            };
-            let totals = shard.sum(
-                0,
-                &[part.len() as f64, own_positive, residual_entries as f64],
-            );
-            let densest = shard.max(1, own_densest);
-            // With no positive sample anywhere, the shards holding the batch's densest (one, but for ties).
-            let holds_densest = f64::from(u8::from(own_densest == densest));
-            let holders = shard.sum(2, &[holds_densest])[0];
-            let (weight, selected) = if totals[1] > 0.0 {
-                (f64::from(u8::from(own_positive > 0.0)), totals[1])
-            } else {
-                (holds_densest, holders)
-            };
-            let consistency = consistency.map(|c| {
-                let selected = Tensor::<1>::from_floats([selected as f32], device);
-                (c.sum * weight as f32, selected)
-            });
-            (totals[0] as f32, consistency, totals[2] as f32)
-        };
-        let mse = data.colour / rays_total * n;
-        let colour_loss = data.loss / rays_total * n;
-        let blend = consistency.map(|(sum, selected)| {
-            let consistency = sum / (selected.clamp_min(1.0) * joints as f32) * n;
-            match &residual {
-                Some(f) => {
-                    consistency
-                        + f.clone().powf_scalar(2.0).sum() / residual_total
-                            * (cfg.residual_weight * n)
-                }
-                None => consistency,
-            }
-        });
-        let loss = match &blend {
-            Some(b) => colour_loss + b.clone(),
-            None => colour_loss,
-        };
+        let sums = TermSums::new(&out, &rays, cfg, model_cfg.consistency);
+        let totals = sums.totals(shard, device);
+        let WeighedTerms { loss, mse, blend } = Objective { cfg }.weigh(sums, totals, shard.count);
         let loss = match self.pose_penalty(model, &batch.inputs[shard.index]) {
             Some(penalty) => loss + penalty,
             None => loss,
@@ -451,50 +384,6 @@ impl Stage1<'_> {
             .then(|| Some([given(f - 1)?, given(f)?, given(f + 1)?]))
             .flatten();
         Some(pose.penalty(f, neighbours))
-    }
-}
-
-/// The data terms of a shard's rays, as sums over its rays (each a mean over the batch once divided by the
-/// batch's ray count).
-struct RayErrors {
-    /// `Σ_r mean_c (rgb − target)²`: the colour loss, logged as the training rays' MSE.
-    colour: Tensor<1>,
-    /// `Σ_r ρ_r(e_r)`: `e_r` is the ray's colour error plus `mask_weight · (acc − m)²`; `ρ_r` is the
-    /// identity, or for band rays under `mask_edges = "robust"` the pseudo-Huber `2c²(√(1 + e/c²) − 1)` of
-    /// scale `c = edge_scale`: `e` for small errors, `2c·√e` for large ones, so that a band ray whose
-    /// labels the rest of the data contradicts pulls with a bounded force.
-    loss: Tensor<1>,
-}
-
-impl RayErrors {
-    /// `rgb`, `target`: `[R, 3]`; `acc`: `[R]` rendered opacity.
-    fn new(
-        rgb: Tensor<2>,
-        target: Tensor<2>,
-        acc: &Tensor<1>,
-        rays: &RayBatch,
-        cfg: &StageConfig,
-    ) -> Self {
-        let n = rgb.dims()[0];
-        let colour = (rgb - target).powf_scalar(2.0).sum_dim(1).reshape([n]) / 3.0;
-        let per_ray = match (&rays.foreground, cfg.mask_weight > 0.0) {
-            (Some(mask), true) => {
-                colour.clone() + (acc.clone() - mask.clone()).powf_scalar(2.0) * cfg.mask_weight
-            }
-            _ => colour.clone(),
-        };
-        let loss = match (&rays.edge, cfg.mask_edges) {
-            (Some(edge), MaskEdges::Robust) => {
-                let c2 = cfg.edge_scale * cfg.edge_scale;
-                let robust = ((per_ray.clone() / c2 + 1.0).sqrt() - 1.0) * (2.0 * c2);
-                per_ray.clone() + (robust - per_ray) * edge.clone()
-            }
-            _ => per_ray,
-        };
-        Self {
-            colour: colour.sum(),
-            loss: loss.sum(),
-        }
     }
 }
 
@@ -597,95 +486,5 @@ mod tests {
             &whole.1,
             Tolerance::Relative(1e-4),
         );
-    }
-
-    /// The data loss against its definition, worked here in f64: each ray's error `e` is its mean squared
-    /// colour error plus `mask_weight · (acc − m)²`; under `robust` a band ray's loss is the pseudo-Huber
-    /// `2c²(√(1 + e/c²) − 1)` of it, so its opacity's gradient is `2 · mask_weight · (acc − m) / √(1 + e/c²)`;
-    /// under `train` the band flags change nothing.
-    #[test]
-    fn band_rays_weigh_their_error_by_the_pseudo_huber_under_robust() {
-        let rgb = [
-            [0.5, 0.0, 1.0],
-            [0.25, 0.25, 0.25],
-            [0.9, 0.8, 0.7],
-            [0.1, 0.1, 0.1],
-        ];
-        let target = [
-            [0.0, 0.0, 0.0],
-            [0.25, 0.75, 0.25],
-            [0.0, 0.0, 0.0],
-            [0.1, 0.2, 0.1],
-        ];
-        let acc = [0.2f32, 0.9, 1.0, 0.05];
-        let foreground = [false, true, false, false];
-        let edge = [false, true, true, true];
-        let host = HostRays {
-            near: vec![1.0; 4],
-            far: vec![2.0; 4],
-            origins: vec![[0.0; 3]; 4],
-            directions: vec![[0.0, 0.0, 1.0]; 4],
-            colors: target.to_vec(),
-            pixels: vec![[0, 0]; 4],
-            foreground: foreground.to_vec(),
-            edge: edge.to_vec(),
-        };
-        let device = cpu_device().autodiff();
-        for edges in ["robust", "train"] {
-            let set = [
-                "train.mask_weight=0.1".to_string(),
-                "train.edge_scale=0.2".to_string(),
-                format!("train.mask_edges={edges}"),
-            ];
-            let cfg = config::assemble(config::demo_table(), &Settings::default(), &set)
-                .unwrap()
-                .train;
-            let rays = RayBatch::new(&host, FrameId(0), ViewId(0), &device);
-            let opacity = Tensor::<1>::from_floats(acc, &device).require_grad();
-            let errors = RayErrors::new(
-                from_rows(rgb.as_flattened(), 4, 3, &device),
-                rays.colors.clone().unwrap(),
-                &opacity,
-                &rays,
-                &cfg,
-            );
-            let (c, w) = (0.2f64, 0.1f64);
-            let (mut colour, mut loss) = (0.0, 0.0);
-            let mut gradient = Vec::new();
-            for r in 0..4 {
-                let squared: f64 = (0..3)
-                    .map(|k| (rgb[r][k] as f64 - target[r][k] as f64).powi(2))
-                    .sum::<f64>()
-                    / 3.0;
-                let miss = acc[r] as f64 - f64::from(u8::from(foreground[r]));
-                let e = squared + w * miss * miss;
-                colour += squared;
-                let slope = if edges == "robust" && edge[r] {
-                    loss += 2.0 * c * c * ((1.0 + e / (c * c)).sqrt() - 1.0);
-                    1.0 / (1.0 + e / (c * c)).sqrt()
-                } else {
-                    loss += e;
-                    1.0
-                };
-                gradient.push((slope * 2.0 * w * miss) as f32);
-            }
-            let got = to_host(errors.colour)[0];
-            assert!(
-                (got as f64 - colour).abs() < 1e-5,
-                "{edges}: colour {got} vs {colour}"
-            );
-            let got = to_host(errors.loss.clone())[0];
-            assert!(
-                (got as f64 - loss).abs() < 1e-5,
-                "{edges}: loss {got} vs {loss}"
-            );
-            let grads = errors.loss.backward();
-            assert_close(
-                &format!("{edges}: opacity gradient"),
-                &to_host(opacity.grad(&grads).unwrap()),
-                &gradient,
-                Tolerance::Relative(1e-4),
-            );
-        }
     }
 }

@@ -1,0 +1,311 @@
+//! The stage-1 objective in three parts: the sums of its terms over one shard's rays and samples
+//! ([`TermSums`], from the model's render), the counts of the whole batch they are divided by ([`Totals`]:
+//! the shard's own on one device, exchanged between the shards of a data-parallel step), and the terms'
+//! weights ([`Objective`]). Every term is a mean over the batch's rays or samples, so the shards' losses
+//! average to the batch's.
+
+use anerf_core::model::{ConsistencyLoss, RenderOutput};
+use anerf_core::render::RayBatch;
+use anerf_core::tensor::to_host;
+use burn::prelude::*;
+
+use super::parallel::Shard;
+use crate::config::{MaskEdges, StageConfig};
+
+/// The sums of one shard's terms, with the counts it knows of its own.
+pub(super) struct TermSums {
+    rays: usize,
+    data: RayErrors,
+    consistency: Option<ConsistencySums>,
+    /// `Σ F²` of the blend-weight residual and its entry count (when penalised).
+    residual: Option<(Tensor<1>, usize)>,
+}
+
+/// The blend-weight consistency's numerator and what decides its denominator.
+struct ConsistencySums {
+    /// `Σ` of the per-entry loss over the selected samples × joints.
+    sum: Tensor<1>,
+    /// `[1]` the samples selected on this shard (density > 0, or the densest where none is).
+    selected: Tensor<1>,
+    joints: usize,
+    /// `[M, 1]` the samples' raw density (detached): which are positive and which is the densest decides
+    /// the selection of the whole batch.
+    density: Tensor<2>,
+}
+
+impl TermSums {
+    /// The terms of `out`, rendered from `rays` (with their colours and masks).
+    pub fn new(
+        out: &RenderOutput,
+        rays: &RayBatch,
+        cfg: &StageConfig,
+        consistency: ConsistencyLoss,
+    ) -> Self {
+        let target = rays.colors.clone().expect("training rays carry colours");
+        let terms = out.consistency.as_ref();
+        Self {
+            rays: rays.len(),
+            data: RayErrors::new(out.rgb.clone(), target, &out.acc, rays, cfg),
+            consistency: terms.map(|c| {
+                let parts = c.loss_parts(consistency);
+                ConsistencySums {
+                    sum: parts.sum,
+                    selected: parts.selected,
+                    joints: c.observed.dims()[1],
+                    density: c.density.clone(),
+                }
+            }),
+            residual: terms
+                .and_then(|c| c.residual.clone())
+                .filter(|_| cfg.residual_weight > 0.0)
+                .map(|f| {
+                    let entries = f.dims().iter().product();
+                    (f.powf_scalar(2.0).sum(), entries)
+                }),
+        }
+    }
+
+    /// The batch's counts: this shard's own when it is the only one (the selected count stays on the
+    /// device); otherwise exchanged with the other shards of the step.
+    pub fn totals(&self, shard: &Shard<'_>, device: &Device) -> Totals {
+        let residual_entries = self.residual.as_ref().map_or(0, |r| r.1);
+        if shard.count == 1 {
+            return Totals {
+                rays: self.rays as f32,
+                residual: residual_entries as f32,
+                consistency: self.consistency.as_ref().map(|c| (1.0, c.selected.clone())),
+            };
+        }
+        // The shards exchange their rays, positive-density samples and residual entries, and their greatest
+        // density: the consistency mask's guard adds the densest sample only where no sample is positive,
+        // which must be decided for the whole batch. A shard whose own selection the batch's does not hold
+        // contributes zero (its term kept, times zero, so that every replica's graph holds the same
+        // parameters, as the all-reduce needs).
+        let (own_positive, own_densest) = match &self.consistency {
+            Some(c) => {
+                let positive = c.density.clone().greater_elem(0.0).float().sum();
+                let v = to_host(Tensor::cat(vec![positive, c.density.clone().max()], 0));
+                (v[0] as f64, v[1] as f64)
+            }
+            None => (0.0, f64::NEG_INFINITY),
+        };
+        let totals = shard.sum(
+            0,
+            &[self.rays as f64, own_positive, residual_entries as f64],
+        );
+        let densest = shard.max(1, own_densest);
+        // With no positive sample anywhere, the shards holding the batch's densest (one, but for ties).
+        let holds_densest = f64::from(u8::from(own_densest == densest));
+        let holders = shard.sum(2, &[holds_densest])[0];
+        let (weight, selected) = if totals[1] > 0.0 {
+            (f64::from(u8::from(own_positive > 0.0)), totals[1])
+        } else {
+            (holds_densest, holders)
+        };
+        Totals {
+            rays: totals[0] as f32,
+            residual: totals[2] as f32,
+            consistency: self.consistency.as_ref().map(|_| {
+                (
+                    weight as f32,
+                    Tensor::<1>::from_floats([selected as f32], device),
+                )
+            }),
+        }
+    }
+}
+
+/// The counts of the whole batch that a shard's sums are divided by.
+pub(super) struct Totals {
+    rays: f32,
+    residual: f32,
+    /// The weight of this shard's consistency sum (0 where the batch's selection excludes its samples) and
+    /// the batch's selected samples `[1]`.
+    consistency: Option<(f32, Tensor<1>)>,
+}
+
+/// The weighted means of one shard's terms, each times the shard count (Burn averages the replicas'
+/// gradients, so the shards' losses add up to the batch's).
+pub(super) struct WeighedTerms {
+    pub loss: Tensor<1>,
+    /// The colour MSE (logged as the training rays' PSNR).
+    pub mse: Tensor<1>,
+    /// Consistency plus weighted residual penalty (when the model has the blend-weight terms).
+    pub blend: Option<Tensor<1>>,
+}
+
+/// The stage-1 loss's weights: colour and silhouette (with the band's robust loss) from the stage's
+/// config, the consistency at weight 1 (the paper), the residual penalty at `residual_weight`.
+pub(super) struct Objective<'a> {
+    pub cfg: &'a StageConfig,
+}
+
+impl Objective<'_> {
+    /// `sums` divided by the batch's `totals` and weighed, for one of `shards` shards.
+    pub fn weigh(&self, sums: TermSums, totals: Totals, shards: usize) -> WeighedTerms {
+        let n = shards as f32;
+        let mse = sums.data.colour / totals.rays * n;
+        let data = sums.data.loss / totals.rays * n;
+        let blend = sums
+            .consistency
+            .zip(totals.consistency)
+            .map(|(c, (weight, selected))| {
+                let consistency = c.sum * weight / (selected.clamp_min(1.0) * c.joints as f32) * n;
+                match sums.residual {
+                    Some((sum, _)) => {
+                        consistency + sum / totals.residual * (self.cfg.residual_weight * n)
+                    }
+                    None => consistency,
+                }
+            });
+        let loss = match &blend {
+            Some(b) => data + b.clone(),
+            None => data,
+        };
+        WeighedTerms { loss, mse, blend }
+    }
+}
+
+/// The data terms of a shard's rays, as sums over its rays.
+struct RayErrors {
+    /// `Σ_r mean_c (rgb − target)²`: the colour loss.
+    colour: Tensor<1>,
+    /// `Σ_r ρ_r(e_r)`: `e_r` is the ray's colour error plus `mask_weight · (acc − m)²`; `ρ_r` is the
+    /// identity, or for band rays under `mask_edges = "robust"` the pseudo-Huber `2c²(√(1 + e/c²) − 1)` of
+    /// scale `c = edge_scale`: `e` for small errors, `2c·√e` for large ones, so that a band ray whose
+    /// labels the rest of the data contradicts pulls with a bounded force.
+    loss: Tensor<1>,
+}
+
+impl RayErrors {
+    /// `rgb`, `target`: `[R, 3]`; `acc`: `[R]` rendered opacity.
+    fn new(
+        rgb: Tensor<2>,
+        target: Tensor<2>,
+        acc: &Tensor<1>,
+        rays: &RayBatch,
+        cfg: &StageConfig,
+    ) -> Self {
+        let n = rgb.dims()[0];
+        let colour = (rgb - target).powf_scalar(2.0).sum_dim(1).reshape([n]) / 3.0;
+        let per_ray = match (&rays.foreground, cfg.mask_weight > 0.0) {
+            (Some(mask), true) => {
+                colour.clone() + (acc.clone() - mask.clone()).powf_scalar(2.0) * cfg.mask_weight
+            }
+            _ => colour.clone(),
+        };
+        let loss = match (&rays.edge, cfg.mask_edges) {
+            (Some(edge), MaskEdges::Robust) => {
+                let c2 = cfg.edge_scale * cfg.edge_scale;
+                let robust = ((per_ray.clone() / c2 + 1.0).sqrt() - 1.0) * (2.0 * c2);
+                per_ray.clone() + (robust - per_ray) * edge.clone()
+            }
+            _ => per_ray,
+        };
+        Self {
+            colour: colour.sum(),
+            loss: loss.sum(),
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::config::{self, Settings};
+    use anerf_core::device::cpu_device;
+    use anerf_core::render::HostRays;
+    use anerf_core::tensor::from_rows;
+    use anerf_core::{FrameId, ViewId};
+    use anerf_testing::{assert_close, Tolerance};
+
+    /// The data loss against its definition, worked here in f64: each ray's error `e` is its mean squared
+    /// colour error plus `mask_weight · (acc − m)²`; under `robust` a band ray's loss is the pseudo-Huber
+    /// `2c²(√(1 + e/c²) − 1)` of it, so its opacity's gradient is `2 · mask_weight · (acc − m) / √(1 + e/c²)`;
+    /// under `train` the band flags change nothing.
+    #[test]
+    fn band_rays_weigh_their_error_by_the_pseudo_huber_under_robust() {
+        let rgb = [
+            [0.5, 0.0, 1.0],
+            [0.25, 0.25, 0.25],
+            [0.9, 0.8, 0.7],
+            [0.1, 0.1, 0.1],
+        ];
+        let target = [
+            [0.0, 0.0, 0.0],
+            [0.25, 0.75, 0.25],
+            [0.0, 0.0, 0.0],
+            [0.1, 0.2, 0.1],
+        ];
+        let acc = [0.2f32, 0.9, 1.0, 0.05];
+        let foreground = [false, true, false, false];
+        let edge = [false, true, true, true];
+        let host = HostRays {
+            near: vec![1.0; 4],
+            far: vec![2.0; 4],
+            origins: vec![[0.0; 3]; 4],
+            directions: vec![[0.0, 0.0, 1.0]; 4],
+            colors: target.to_vec(),
+            pixels: vec![[0, 0]; 4],
+            foreground: foreground.to_vec(),
+            edge: edge.to_vec(),
+        };
+        let device = cpu_device().autodiff();
+        for edges in ["robust", "train"] {
+            let set = [
+                "train.mask_weight=0.1".to_string(),
+                "train.edge_scale=0.2".to_string(),
+                format!("train.mask_edges={edges}"),
+            ];
+            let cfg = config::assemble(config::demo_table(), &Settings::default(), &set)
+                .unwrap()
+                .train;
+            let rays = RayBatch::new(&host, FrameId(0), ViewId(0), &device);
+            let opacity = Tensor::<1>::from_floats(acc, &device).require_grad();
+            let errors = RayErrors::new(
+                from_rows(rgb.as_flattened(), 4, 3, &device),
+                rays.colors.clone().unwrap(),
+                &opacity,
+                &rays,
+                &cfg,
+            );
+            let (c, w) = (0.2f64, 0.1f64);
+            let (mut colour, mut loss) = (0.0, 0.0);
+            let mut gradient = Vec::new();
+            for r in 0..4 {
+                let squared: f64 = (0..3)
+                    .map(|k| (rgb[r][k] as f64 - target[r][k] as f64).powi(2))
+                    .sum::<f64>()
+                    / 3.0;
+                let miss = acc[r] as f64 - f64::from(u8::from(foreground[r]));
+                let e = squared + w * miss * miss;
+                colour += squared;
+                let slope = if edges == "robust" && edge[r] {
+                    loss += 2.0 * c * c * ((1.0 + e / (c * c)).sqrt() - 1.0);
+                    1.0 / (1.0 + e / (c * c)).sqrt()
+                } else {
+                    loss += e;
+                    1.0
+                };
+                gradient.push((slope * 2.0 * w * miss) as f32);
+            }
+            let got = to_host(errors.colour)[0];
+            assert!(
+                (got as f64 - colour).abs() < 1e-5,
+                "{edges}: colour {got} vs {colour}"
+            );
+            let got = to_host(errors.loss.clone())[0];
+            assert!(
+                (got as f64 - loss).abs() < 1e-5,
+                "{edges}: loss {got} vs {loss}"
+            );
+            let grads = errors.loss.backward();
+            assert_close(
+                &format!("{edges}: opacity gradient"),
+                &to_host(opacity.grad(&grads).unwrap()),
+                &gradient,
+                Tolerance::Relative(1e-4),
+            );
+        }
+    }
+}
