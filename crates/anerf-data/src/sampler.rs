@@ -34,7 +34,7 @@ pub enum MaskEdges {
 }
 
 impl MaskEdges {
-    /// Reads the setting as written today (`"skip"`, `"train"`) or as the boolean
+    /// Reads the setting as written today (`"skip"`, `"train"`, `"robust"`) or as the boolean
     /// `skip_mask_edges` of earlier versions' configs and checkpoints (`true` skips, `false` trains).
     pub fn deserialize_compatible<'de, D: serde::Deserializer<'de>>(
         d: D,

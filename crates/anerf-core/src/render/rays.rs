@@ -55,26 +55,15 @@ impl HostRays {
 
     /// The rays `range` as a new batch (for rendering in chunks).
     pub fn slice(&self, range: std::ops::Range<usize>) -> Self {
-        let part = |v: &[[f32; 3]]| {
-            if v.is_empty() {
-                Vec::new()
-            } else {
-                v[range.clone()].to_vec()
-            }
-        };
         Self {
             origins: self.origins[range.clone()].to_vec(),
             directions: self.directions[range.clone()].to_vec(),
             near: self.near[range.clone()].to_vec(),
             far: self.far[range.clone()].to_vec(),
-            colors: part(&self.colors),
-            pixels: if self.pixels.is_empty() {
-                Vec::new()
-            } else {
-                self.pixels[range.clone()].to_vec()
-            },
-            foreground: flags(&self.foreground, range.clone()),
-            edge: flags(&self.edge, range),
+            colors: known_part(&self.colors, range.clone()),
+            pixels: known_part(&self.pixels, range.clone()),
+            foreground: known_part(&self.foreground, range.clone()),
+            edge: known_part(&self.edge, range),
         }
     }
 }
@@ -128,12 +117,12 @@ impl RayBatch {
     }
 }
 
-/// `flags[range]`, or nothing when the flags are not known.
-fn flags(flags: &[bool], range: std::ops::Range<usize>) -> Vec<bool> {
-    if flags.is_empty() {
+/// `values[range]` of a per-ray field, or nothing when the field is not known (empty).
+fn known_part<T: Clone>(values: &[T], range: std::ops::Range<usize>) -> Vec<T> {
+    if values.is_empty() {
         Vec::new()
     } else {
-        flags[range].to_vec()
+        values[range].to_vec()
     }
 }
 

@@ -124,8 +124,8 @@ pub(super) struct Totals {
     consistency: Option<(f32, Tensor<1>)>,
 }
 
-/// The weighted means of one shard's terms, each times the shard count (Burn averages the replicas'
-/// gradients, so the shards' losses add up to the batch's).
+/// The weighted means of one shard's terms, each times the shard count: Burn averages the replicas'
+/// gradients, and the shards' losses average to the batch's.
 pub(super) struct WeighedTerms {
     pub loss: Tensor<1>,
     /// The colour MSE (logged as the training rays' PSNR).
