@@ -23,7 +23,7 @@ done
 
 ANERF="${ANERF:-$ROOT/target/debug/anerf}"
 if [ ! -x "$ANERF" ]; then
-    (cd "$ROOT" && cargo build -q -p anerf-train)
+    (cd "$ROOT" && cargo build -q -p anerf)
 fi
 
 if [ "$QUICK" = 1 ]; then

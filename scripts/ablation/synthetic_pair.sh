@@ -23,7 +23,7 @@ while [ $# -gt 0 ]; do
     shift
 done
 ANERF="${ANERF:-$ROOT/target/debug/anerf}"
-[ -x "$ANERF" ] || (cd "$ROOT" && cargo build -q -p anerf-train --bin anerf)
+[ -x "$ANERF" ] || (cd "$ROOT" && cargo build -q -p anerf --bin anerf)
 mkdir -p "$OUT"
 
 case "$PRESET" in

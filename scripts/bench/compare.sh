@@ -13,7 +13,7 @@ rounds="${2:-3}"
 steps="${3:-2}"
 python="scripts/bench/.venv/bin/python"
 [[ -x "$python" ]] || { echo "no $python: run scripts/bench/setup_torch.sh first" >&2; exit 1; }
-cargo build --quiet -p anerf-train --bin anerf
+cargo build --quiet -p anerf --bin anerf
 anerf="${CARGO_TARGET_DIR:-target}/debug/anerf"
 [[ -x "$anerf" ]] || anerf="target/debug/anerf"
 mkdir -p target/bench

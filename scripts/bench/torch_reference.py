@@ -2,9 +2,10 @@
 """The step of `anerf bench` in PyTorch: the same networks, the same batch, the same loss and optimiser.
 
 One step is the model's per-point work at training time with every point surviving culling (see
-crates/anerf-train/src/bench.rs): frame blend weights (MLP 1), inverse skinning, the canonical NeRF (MLP 2),
-canonical blend weights at the warped points (MLP 3), colour MSE + smooth-L1 consistency + 1e-4 mean density²,
-backward, gradient clipping to ±40 and an Adam step.
+crates/anerf-run/src/bench/step.rs): frame blend weights (MLP 1), inverse skinning, the canonical NeRF (MLP 2),
+canonical blend weights at the warped points (MLP 3), stage 1's objective with each point a ray of its own (colour
+MSE + smooth-L1 consistency; the presets weigh no residual penalty), backward, gradient clipping to ±40 and an
+Adam step.
 
 The network sizes come from the Rust presets, so both sides always agree:
 
@@ -274,7 +275,7 @@ def main():
         inner = diff.clamp(max=1.0)
         per = 0.5 * inner**2 + (diff - inner)
         consistency = (per * mask).sum() / (mask.sum().clamp(min=1.0) * JOINTS)
-        loss = F.mse_loss(rgb, target) + consistency + 1e-4 * (density**2).mean()
+        loss = F.mse_loss(rgb, target) + consistency
         optim.zero_grad(set_to_none=True)
         loss.backward()
         torch.nn.utils.clip_grad_value_(params, 40.0)

@@ -24,7 +24,7 @@ rm -rf "$out" "$archive"
 mkdir -p "$out"
 
 bash scripts/gpu/llvm.sh
-cargo build --release -p anerf-train --bin anerf --features anerf-core/cuda,anerf-core/wgpu
+cargo build --release -p anerf --bin anerf --features anerf-core/cuda,anerf-core/wgpu
 strip -o "$out/anerf" target/release/anerf
 
 # The comparisons: anerf-core's unit tests (selected by name when run) and the gpu_backends test.

@@ -32,7 +32,7 @@
 #   DEMO      1 to run the demo (default 1); PYTHON: the interpreter with torch (default python3)
 #   DEADLINE  seconds the whole check may take (default 480)
 # On a machine without a GPU (DEVICES=flex) the same steps run on the CPU: that is how the script itself is
-# tested (crates/anerf-train/tests/device_check.rs).
+# tested (apps/anerf/tests/device_check.rs).
 set -uo pipefail
 cd "$(dirname "$0")/../.."
 

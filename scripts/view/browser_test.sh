@@ -29,7 +29,7 @@ fi
 bash scripts/npm_tools.sh
 anerf=${ANERF:-target/debug/anerf}
 if [ ! -x "$anerf" ]; then
-    cargo build --quiet -p anerf-train --bin anerf
+    cargo build --quiet -p anerf --bin anerf
 fi
 
 work=$(mktemp -d)

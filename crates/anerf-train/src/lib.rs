@@ -1,14 +1,10 @@
 //! Training for anerf: experiment configs, the experiment a run trains on, the stage-1 and stage-2 loops,
-//! checkpoints and run folders, and the jobs the `anerf` app runs on a run folder (train, animate,
-//! evaluate, render, mesh). The command-line app itself is `src/bin/anerf/`.
+//! checkpoints and the run folder they write. The jobs on a run folder are `anerf-run`, the viewer
+//! `anerf-view` and the command-line app `apps/anerf`.
 
 pub mod checkpoint;
 pub mod config;
 pub mod experiment;
-pub mod jobs;
-pub mod memory;
-pub mod mesh;
-pub mod motion;
 pub mod plots;
 pub mod progress;
 pub mod render;
@@ -16,4 +12,3 @@ pub mod run_dir;
 pub mod run_start;
 pub mod stage;
 pub mod training;
-pub mod view;

@@ -6,6 +6,7 @@ pub mod aabb;
 pub mod camera;
 pub mod kinematics;
 pub mod lbs;
+pub mod orbit;
 pub mod rotation;
 pub mod skeleton;
 pub mod skinning;
@@ -17,6 +18,7 @@ pub use kinematics::{PoseBasis, PoseCorrection};
 pub use lbs::{
     blend_transforms, forward_lbs_point, forward_lbs_points, inverse_lbs_point, validate_weights,
 };
+pub use orbit::{mean_up, orbit, orbit_camera};
 pub use rotation::{axis_angle_to_matrix, matrix_to_axis_angle};
 pub use skeleton::{BoneTransforms, CanonicalPose, GlobalTransform, Pose, Skeleton};
 pub use skinning::BoneMatrices;

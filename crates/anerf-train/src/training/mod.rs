@@ -6,7 +6,7 @@
 //! (`parallel`).
 
 mod driver;
-mod objective;
+pub mod objective;
 mod parallel;
 pub mod schedule;
 pub mod seeds;

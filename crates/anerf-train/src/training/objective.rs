@@ -2,9 +2,9 @@
 //! ([`TermSums`], from the model's render), the counts of the whole batch they are divided by ([`Totals`]:
 //! the shard's own on one device, exchanged between the shards of a data-parallel step), and the terms'
 //! weights ([`Objective`]). Every term is a mean over the batch's rays or samples, so the shards' losses
-//! average to the batch's.
+//! average to the batch's. `anerf bench` times its step with the same objective ([`TermSums::of_points`]).
 
-use anerf_core::model::{ConsistencyLoss, RenderOutput};
+use anerf_core::model::{ConsistencyLoss, ConsistencyTerms, RenderOutput};
 use anerf_core::render::RayBatch;
 use anerf_core::tensor::to_host;
 use burn::prelude::*;
@@ -13,7 +13,7 @@ use super::parallel::Shard;
 use crate::config::{MaskEdges, StageConfig};
 
 /// The sums of one shard's terms, with the counts it knows of its own.
-pub(super) struct TermSums {
+pub struct TermSums {
     rays: usize,
     data: RayErrors,
     consistency: Option<ConsistencySums>,
@@ -42,10 +42,34 @@ impl TermSums {
         consistency: ConsistencyLoss,
     ) -> Self {
         let target = rays.colors.clone().expect("training rays carry colours");
-        let terms = out.consistency.as_ref();
+        let silhouette = rays.foreground.as_ref().map(|m| (&out.acc, m));
+        let data = RayErrors::new(out.rgb.clone(), target, silhouette, rays.edge.as_ref(), cfg);
+        Self::from_parts(data, out.consistency.as_ref(), cfg, consistency)
+    }
+
+    /// The terms of shaded points `rgb` `[M, 3]` against colours `target` `[M, 3]`, each point a ray of
+    /// its own (no silhouette, no band), with the consistency `terms` of the same points: `anerf bench`'s
+    /// step, the model's per-sample work with this objective on top.
+    pub fn of_points(
+        rgb: Tensor<2>,
+        target: Tensor<2>,
+        terms: &ConsistencyTerms,
+        cfg: &StageConfig,
+        consistency: ConsistencyLoss,
+    ) -> Self {
+        let data = RayErrors::new(rgb, target, None, None, cfg);
+        Self::from_parts(data, Some(terms), cfg, consistency)
+    }
+
+    fn from_parts(
+        data: RayErrors,
+        terms: Option<&ConsistencyTerms>,
+        cfg: &StageConfig,
+        consistency: ConsistencyLoss,
+    ) -> Self {
         Self {
-            rays: rays.len(),
-            data: RayErrors::new(out.rgb.clone(), target, &out.acc, rays, cfg),
+            rays: data.rays,
+            data,
             consistency: terms.map(|c| {
                 let parts = c.loss_parts(consistency);
                 ConsistencySums {
@@ -65,17 +89,23 @@ impl TermSums {
         }
     }
 
-    /// The batch's counts: this shard's own when it is the only one (the selected count stays on the
-    /// device); otherwise exchanged with the other shards of the step.
-    pub fn totals(&self, shard: &Shard<'_>, device: &Device) -> Totals {
-        let residual_entries = self.residual.as_ref().map_or(0, |r| r.1);
-        if shard.count == 1 {
-            return Totals {
-                rays: self.rays as f32,
-                residual: residual_entries as f32,
-                consistency: self.consistency.as_ref().map(|c| (1.0, c.selected.clone())),
-            };
+    /// The counts of a batch of which these are all the terms (one device); the selected count stays on
+    /// the device.
+    pub fn local_totals(&self) -> Totals {
+        Totals {
+            rays: self.rays as f32,
+            residual: self.residual.as_ref().map_or(0, |r| r.1) as f32,
+            consistency: self.consistency.as_ref().map(|c| (1.0, c.selected.clone())),
         }
+    }
+
+    /// The batch's counts: this shard's own when it is the only one ([`Self::local_totals`]); otherwise
+    /// exchanged with the other shards of the step.
+    pub(super) fn totals(&self, shard: &Shard<'_>, device: &Device) -> Totals {
+        if shard.count == 1 {
+            return self.local_totals();
+        }
+        let residual_entries = self.residual.as_ref().map_or(0, |r| r.1);
         // The shards exchange their rays, positive-density samples and residual entries, and their greatest
         // density: the consistency mask's guard adds the densest sample only where no sample is positive,
         // which must be decided for the whole batch. A shard whose own selection the batch's does not hold
@@ -116,7 +146,7 @@ impl TermSums {
 }
 
 /// The counts of the whole batch that a shard's sums are divided by.
-pub(super) struct Totals {
+pub struct Totals {
     rays: f32,
     residual: f32,
     /// The weight of this shard's consistency sum (0 where the batch's selection excludes its samples) and
@@ -126,7 +156,7 @@ pub(super) struct Totals {
 
 /// The weighted means of one shard's terms, each times the shard count: Burn averages the replicas'
 /// gradients, and the shards' losses average to the batch's.
-pub(super) struct WeighedTerms {
+pub struct WeighedTerms {
     pub loss: Tensor<1>,
     /// The colour MSE (logged as the training rays' PSNR).
     pub mse: Tensor<1>,
@@ -136,7 +166,7 @@ pub(super) struct WeighedTerms {
 
 /// The stage-1 loss's weights: colour and silhouette (with the band's robust loss) from the stage's
 /// config, the consistency at weight 1 (the paper), the residual penalty at `residual_weight`.
-pub(super) struct Objective<'a> {
+pub struct Objective<'a> {
     pub cfg: &'a StageConfig,
 }
 
@@ -168,6 +198,7 @@ impl Objective<'_> {
 
 /// The data terms of a shard's rays, as sums over its rays.
 struct RayErrors {
+    rays: usize,
     /// `Σ_r mean_c (rgb − target)²`: the colour loss.
     colour: Tensor<1>,
     /// `Σ_r ρ_r(e_r)`: `e_r` is the ray's colour error plus `mask_weight · (acc − m)²`; `ρ_r` is the
@@ -178,23 +209,24 @@ struct RayErrors {
 }
 
 impl RayErrors {
-    /// `rgb`, `target`: `[R, 3]`; `acc`: `[R]` rendered opacity.
+    /// `rgb`, `target`: `[R, 3]`; `silhouette`: the rays' rendered opacity and mask labels `[R]`, where
+    /// known; `edge`: `[R]` 1 on band rays, where known.
     fn new(
         rgb: Tensor<2>,
         target: Tensor<2>,
-        acc: &Tensor<1>,
-        rays: &RayBatch,
+        silhouette: Option<(&Tensor<1>, &Tensor<1>)>,
+        edge: Option<&Tensor<1>>,
         cfg: &StageConfig,
     ) -> Self {
         let n = rgb.dims()[0];
         let colour = (rgb - target).powf_scalar(2.0).sum_dim(1).reshape([n]) / 3.0;
-        let per_ray = match (&rays.foreground, cfg.mask_weight > 0.0) {
-            (Some(mask), true) => {
+        let per_ray = match (silhouette, cfg.mask_weight > 0.0) {
+            (Some((acc, mask)), true) => {
                 colour.clone() + (acc.clone() - mask.clone()).powf_scalar(2.0) * cfg.mask_weight
             }
             _ => colour.clone(),
         };
-        let loss = match (&rays.edge, cfg.mask_edges) {
+        let loss = match (edge, cfg.mask_edges) {
             (Some(edge), MaskEdges::Robust) => {
                 let c2 = cfg.edge_scale * cfg.edge_scale;
                 let robust = ((per_ray.clone() / c2 + 1.0).sqrt() - 1.0) * (2.0 * c2);
@@ -203,6 +235,7 @@ impl RayErrors {
             _ => per_ray,
         };
         Self {
+            rays: n,
             colour: colour.sum(),
             loss: loss.sum(),
         }
@@ -265,8 +298,8 @@ mod tests {
             let errors = RayErrors::new(
                 from_rows(rgb.as_flattened(), 4, 3, &device),
                 rays.colors.clone().unwrap(),
-                &opacity,
-                &rays,
+                Some((&opacity, rays.foreground.as_ref().unwrap())),
+                rays.edge.as_ref(),
                 &cfg,
             );
             let (c, w) = (0.2f64, 0.1f64);
