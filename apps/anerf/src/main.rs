@@ -1,6 +1,7 @@
 //! The `anerf` command-line tool: parses a command line and runs the command's module in `commands/`.
 
 mod alloc;
+mod args;
 mod cli;
 mod commands;
 

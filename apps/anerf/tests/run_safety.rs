@@ -11,10 +11,10 @@ use std::process::Command;
 use std::sync::atomic::AtomicBool;
 
 use anerf_core::device::cpu_device;
-use anerf_train::checkpoint::Checkpoint;
 use anerf_train::config::{self, ExperimentConfig};
 use anerf_train::run_start::RunStart;
 use anerf_train::stage::Stage;
+use anerf_train::training::checkpoint::Checkpoint;
 use anerf_train::training::StageOutcome;
 use common::{quiet, tiny, tiny_config};
 

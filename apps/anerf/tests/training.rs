@@ -12,12 +12,12 @@ use std::time::{Duration, Instant};
 
 use anerf_core::device::cpu_device;
 use anerf_eval::ImageMetrics;
-use anerf_train::checkpoint::Checkpoint;
 use anerf_train::config::{self, ExperimentConfig};
 use anerf_train::experiment::Experiment;
 use anerf_train::render::render_view;
 use anerf_train::run_start::RunStart;
 use anerf_train::stage::Stage;
+use anerf_train::training::checkpoint::Checkpoint;
 use common::{quiet, tiny, train, trained};
 
 fn losses(run: &Path) -> Vec<f32> {

@@ -10,6 +10,8 @@ use glam::Vec3;
 use serde::{Deserialize, Serialize};
 
 use crate::error::DataError;
+use crate::formats::arrays::points;
+use crate::formats::read_npy;
 use crate::smpl::{SmplModel, SmplParams};
 
 /// Which layout a subject was read from.
@@ -79,7 +81,7 @@ impl PosedVertices {
     /// and either source a body of a person's size ([`check_body_size`]).
     pub fn read(&self, expected: Option<usize>) -> Result<Vec<Vec3>, DataError> {
         match self {
-            PosedVertices::File(path) => crate::loaders::read_posed_vertices(path, expected),
+            PosedVertices::File(path) => read_posed_vertices(path, expected),
             PosedVertices::Fitted(f) => {
                 let vertices: Vec<Vec3> = f
                     .model
@@ -163,6 +165,28 @@ impl SkinningWeights {
     /// All weights, row-major.
     pub fn as_slice(&self) -> &[f32] {
         &self.data
+    }
+}
+
+/// Posed world vertices of a frame (`new_vertices/{i}.npy`, `V × 3` metres, finite), `expected` of them
+/// when `lbs/tvertices.npy` gave the count.
+pub(crate) fn read_posed_vertices(
+    path: &Path,
+    expected: Option<usize>,
+) -> Result<Vec<Vec3>, DataError> {
+    let v = points(&read_npy(path)?, path, "vertices")?;
+    match expected {
+        Some(n) if v.len() != n => Err(DataError::invalid(
+            path,
+            format!(
+                "holds {} vertices, expected {n} like lbs/tvertices.npy",
+                v.len()
+            ),
+        )),
+        _ => {
+            check_body_size(&v, path, "the posed body")?;
+            Ok(v)
+        }
     }
 }
 

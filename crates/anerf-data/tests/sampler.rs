@@ -3,8 +3,9 @@
 
 use anerf_core::{FrameId, ViewId};
 use anerf_data::formats::{self, NdArray};
+use anerf_data::prepare::edge_band;
 use anerf_data::prepare::{FrameSelection, ImageScale};
-use anerf_data::sampler::{box_mask, edge_band};
+use anerf_data::sampler::box_mask;
 use anerf_data::{
     image_rays, load_zju_mocap, prepare, LoadOptions, MaskEdges, PrepareOptions, PreparedSubject,
     RaySampler, SamplerOptions,

@@ -1,32 +1,12 @@
-//! Errors of the evaluation layer: in-memory metric errors and file errors that name the file.
+//! Errors of the evaluation layer: file errors that name the file, and the in-memory metric errors
+//! (defined with the image types they are about, in `pixels`).
 
 use std::path::PathBuf;
 
 use thiserror::Error;
 
 use crate::pixels::ImageSize;
-
-/// Invalid inputs to the metrics or to in-memory image operations.
-#[derive(Debug, Error, Clone, PartialEq)]
-pub enum MetricError {
-    #[error("images differ in size: {a} vs {b}; expected the same size")]
-    SizeMismatch { a: ImageSize, b: ImageSize },
-    #[error("mask has no foreground pixel; expected at least one")]
-    EmptyMask,
-    #[error(
-        "SSIM needs at least 7x7 pixels (its window), got a {size} region; the reference's skimage call \
-         rejects it too"
-    )]
-    TooSmallForSsim { size: ImageSize },
-    #[error("image data has {got} values, expected {expected} (3 per pixel of {size})")]
-    DataLength {
-        size: ImageSize,
-        expected: usize,
-        got: usize,
-    },
-    #[error("image value {index} is not finite: {value}")]
-    NonFinite { index: usize, value: f32 },
-}
+pub use crate::pixels::MetricError;
 
 /// Errors while reading, measuring or writing evaluation files; every variant names its file.
 #[derive(Debug, Error)]

@@ -5,8 +5,7 @@
 
 use image::Rgb32FImage;
 use serde::{Deserialize, Serialize};
-
-use crate::error::MetricError;
+use thiserror::Error;
 
 /// Width and height of an image in pixels.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
@@ -237,6 +236,28 @@ pub(crate) fn ensure_same_size(a: ImageSize, b: ImageSize) -> Result<(), MetricE
     } else {
         Err(MetricError::SizeMismatch { a, b })
     }
+}
+
+/// Invalid inputs to the metrics or to in-memory image operations.
+#[derive(Debug, Error, Clone, PartialEq)]
+pub enum MetricError {
+    #[error("images differ in size: {a} vs {b}; expected the same size")]
+    SizeMismatch { a: ImageSize, b: ImageSize },
+    #[error("mask has no foreground pixel; expected at least one")]
+    EmptyMask,
+    #[error(
+        "SSIM needs at least 7x7 pixels (its window), got a {size} region; the reference's skimage call \
+         rejects it too"
+    )]
+    TooSmallForSsim { size: ImageSize },
+    #[error("image data has {got} values, expected {expected} (3 per pixel of {size})")]
+    DataLength {
+        size: ImageSize,
+        expected: usize,
+        got: usize,
+    },
+    #[error("image value {index} is not finite: {value}")]
+    NonFinite { index: usize, value: f32 },
 }
 
 #[cfg(test)]

@@ -8,11 +8,11 @@ use std::time::{Duration, Instant};
 use anerf_core::model::ModelPreset;
 use anerf_data::synthetic::{write_subject, SynthPreset, SyntheticSpec, SyntheticSummary};
 use anerf_eval::report::EvalSplit;
-use anerf_train::checkpoint::Checkpoint;
 use anerf_train::config::{self, Settings};
 use anerf_train::run_dir::RunDir;
 use anerf_train::run_start::RunStart;
 use anerf_train::stage::Stage;
+use anerf_train::training::checkpoint::Checkpoint;
 use anerf_train::training::StageOutcome;
 use anyhow::{Context, Result};
 

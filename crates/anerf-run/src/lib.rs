@@ -29,11 +29,11 @@ pub use render::{render, RenderJob, Rendered};
 pub use stages::{animate, train};
 
 use crate::memory::Work;
-use anerf_train::checkpoint::Checkpoint;
 use anerf_train::config::{self, ExperimentConfig};
 use anerf_train::progress::StageProgress;
 use anerf_train::run_dir::RunDir;
 use anerf_train::stage::Stage;
+use anerf_train::training::checkpoint::Checkpoint;
 
 /// What every job takes besides its own arguments.
 #[derive(Debug, Clone, Default)]

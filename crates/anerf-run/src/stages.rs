@@ -7,12 +7,12 @@ use anyhow::{bail, Result};
 
 use crate::memory::{self, Work};
 use crate::{data_parallel_devices, device, open_run, JobOptions};
-use anerf_train::checkpoint::Checkpoint;
 use anerf_train::config::ExperimentConfig;
 use anerf_train::experiment::Experiment;
 use anerf_train::run_dir::RunDir;
 use anerf_train::run_start::{self, RunStart};
 use anerf_train::stage::Stage;
+use anerf_train::training::checkpoint::Checkpoint;
 use anerf_train::training::{train_stage1, train_stage2, StageOutcome, TrainOptions};
 
 /// Stage 1 of `config` into `run`. The start is checked (`start`), the config validated and the data

@@ -11,11 +11,11 @@ use anerf_core::device::cpu_device;
 use anerf_core::geometry::Pose;
 use anerf_core::model::FrameInputs;
 use anerf_core::FrameId;
-use anerf_train::checkpoint::Checkpoint;
 use anerf_train::experiment::Experiment;
 use anerf_train::render::{render_shot, Shot};
 use anerf_train::run_start::RunStart;
 use anerf_train::stage::Stage;
+use anerf_train::training::checkpoint::Checkpoint;
 use common::{quiet, tiny};
 use serde_json::Value;
 

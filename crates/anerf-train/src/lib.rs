@@ -2,7 +2,6 @@
 //! checkpoints and the run folder they write. The jobs on a run folder are `anerf-run`, the viewer
 //! `anerf-view` and the command-line app `apps/anerf`.
 
-pub mod checkpoint;
 pub mod config;
 pub mod experiment;
 pub mod plots;

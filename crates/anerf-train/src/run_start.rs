@@ -7,9 +7,9 @@ use std::path::Path;
 use anerf_data::paths::{self, Overlap};
 use anyhow::{bail, Context, Result};
 
-use crate::checkpoint::Checkpoint;
 use crate::run_dir::RunDir;
 use crate::stage::Stage;
+use crate::training::checkpoint::Checkpoint;
 
 /// `--resume`, `--overwrite` or neither.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]

@@ -14,7 +14,7 @@ use anyhow::{Context, Result};
 use percent_encoding::{AsciiSet, NON_ALPHANUMERIC};
 use serde::Serialize;
 
-use super::routes::{inside_run, Outside};
+use super::inside::{inside_run, Outside};
 use anerf_train::plots::{has_stage, read_log};
 use anerf_train::run_dir::RunDir;
 

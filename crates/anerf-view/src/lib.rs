@@ -6,6 +6,7 @@
 pub mod assets;
 pub mod http;
 pub mod index;
+pub mod inside;
 pub mod routes;
 
 use std::io;

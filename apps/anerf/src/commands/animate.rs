@@ -5,7 +5,7 @@ use std::path::PathBuf;
 use anyhow::Result;
 use clap::Args;
 
-use crate::cli::{interrupt_flag, Common, MotionArgs, StartArgs};
+use crate::args::{interrupt_flag, Common, MotionArgs, StartArgs};
 
 #[derive(Debug, Args)]
 pub struct AnimateArgs {

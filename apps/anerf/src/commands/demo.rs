@@ -9,7 +9,7 @@ use anerf_train::stage::Stage;
 use anyhow::Result;
 use clap::Args;
 
-use crate::cli::{interrupt_flag, Common};
+use crate::args::{interrupt_flag, Common};
 
 #[derive(Debug, Args)]
 pub struct DemoArgs {

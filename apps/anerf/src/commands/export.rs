@@ -6,7 +6,7 @@ use anerf_run::{ExportJob, Exported};
 use anyhow::{bail, Result};
 use clap::{Args, ValueEnum};
 
-use crate::cli::{Common, MotionArgs, SurfaceArgs};
+use crate::args::{Common, MotionArgs, SurfaceArgs};
 
 /// Export file formats.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]

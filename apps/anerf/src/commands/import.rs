@@ -7,7 +7,7 @@ use anerf_data::{loaders, zju_layout, DatasetKind};
 use anyhow::{Context, Result};
 use clap::{Args, ValueEnum};
 
-use crate::cli::CaptureArgs;
+use crate::args::CaptureArgs;
 
 /// The layouts `import` reads.
 #[derive(Debug, Clone, Copy, ValueEnum)]

@@ -6,7 +6,7 @@ use anerf_train::config;
 use anyhow::{bail, Result};
 use clap::Args;
 
-use crate::cli::CaptureArgs;
+use crate::args::CaptureArgs;
 
 #[derive(Debug, Args)]
 pub struct InfoArgs {

@@ -7,7 +7,7 @@ use anerf_run::MeshFiles;
 use anyhow::Result;
 use clap::Args;
 
-use crate::cli::{Common, SurfaceArgs};
+use crate::args::{Common, SurfaceArgs};
 
 #[derive(Debug, Args)]
 pub struct MeshArgs {

@@ -7,7 +7,7 @@ use anerf_train::experiment::Experiment;
 use anyhow::Result;
 use clap::Args;
 
-use crate::cli::Common;
+use crate::args::Common;
 
 #[derive(Debug, Args)]
 pub struct PrepareArgs {

@@ -6,7 +6,7 @@ use anerf_run::{MotionCamera, RenderJob, Rendered};
 use anyhow::Result;
 use clap::Args;
 
-use crate::cli::{Common, MotionArgs};
+use crate::args::{Common, MotionArgs};
 
 #[derive(Debug, Args)]
 pub struct RenderArgs {

@@ -9,7 +9,7 @@ use anerf_train::training::StageOutcome;
 use anyhow::{bail, Result};
 use clap::Args;
 
-use crate::cli::{interrupt_flag, CaptureArgs, Common, StartArgs};
+use crate::args::{interrupt_flag, CaptureArgs, Common, StartArgs};
 
 #[derive(Debug, Args)]
 pub struct TrainArgs {
@@ -111,7 +111,13 @@ mod tests {
     use clap::Parser;
 
     use super::*;
-    use crate::cli::{Cli, Command};
+
+    /// `anerf train`'s flags alone, parsed as the app parses them.
+    #[derive(Debug, Parser)]
+    struct Train {
+        #[command(flatten)]
+        args: TrainArgs,
+    }
 
     fn configs_dir() -> PathBuf {
         Path::new(env!("CARGO_MANIFEST_DIR")).join("../../configs")
@@ -121,8 +127,7 @@ mod tests {
     #[test]
     fn train_flags_override_a_config_file_and_set_overrides_the_flags() {
         let file = configs_dir().join("zju_mocap/313.toml");
-        let cli = Cli::parse_from([
-            "anerf",
+        let args = Train::parse_from([
             "train",
             file.to_str().unwrap(),
             "--preset",
@@ -137,10 +142,8 @@ mod tests {
             "10:20:5",
             "--set",
             "train.iterations=9",
-        ]);
-        let Command::Train(args) = cli.command else {
-            panic!("parsed as another command")
-        };
+        ])
+        .args;
         let c = config(&args).unwrap();
         let file_config = config::load(&file, &[]).unwrap();
         assert_ne!(file_config.model, c.model, "the file's preset is not tiny");
@@ -152,13 +155,7 @@ mod tests {
             (0..10).collect::<Vec<_>>()
         );
         assert_eq!(c.dataset.split().novel_pose_frames.frames(), vec![10, 15]);
-        let bad = Cli::try_parse_from([
-            "anerf",
-            "train",
-            file.to_str().unwrap(),
-            "--train-frames",
-            "9:3",
-        ]);
+        let bad = Train::try_parse_from(["train", file.to_str().unwrap(), "--train-frames", "9:3"]);
         let err = bad.unwrap_err().to_string();
         assert!(err.contains("--train-frames"), "{err}");
     }
@@ -169,13 +166,11 @@ mod tests {
     fn devices_take_a_cuda_list_and_conflict_with_device() {
         let file = configs_dir().join("zju_mocap/313.toml");
         let parse = |extra: &[&str]| {
-            let mut argv = vec!["anerf", "train", file.to_str().unwrap()];
+            let mut argv = vec!["train", file.to_str().unwrap()];
             argv.extend(extra);
-            Cli::try_parse_from(argv)
+            Train::try_parse_from(argv).map(|t| t.args)
         };
-        let Command::Train(args) = parse(&["--devices", "cuda:0,cuda:1"]).unwrap().command else {
-            panic!("parsed as another command")
-        };
+        let args = parse(&["--devices", "cuda:0,cuda:1"]).unwrap();
         let devices = args.devices.clone().unwrap();
         assert_eq!(
             devices.iter().map(ToString::to_string).collect::<Vec<_>>(),
@@ -183,9 +178,7 @@ mod tests {
         );
         let both = parse(&["--devices", "cuda:0", "--device", "cuda"]).unwrap_err();
         assert!(both.to_string().contains("--device"), "{both}");
-        let Command::Train(args) = parse(&["--devices", "flex,flex:1"]).unwrap().command else {
-            panic!("parsed as another command")
-        };
+        let args = parse(&["--devices", "flex,flex:1"]).unwrap();
         let out = std::env::temp_dir().join("anerf-devices-refused");
         let err = anerf_run::train(
             config(&args).unwrap(),

@@ -2,8 +2,10 @@
 //! `.npy` arrays and `np.save(dict)` pickles used by the synthetic subjects. The parsers work on bytes; the
 //! functions here read files and attach the path to every error.
 
+pub(crate) mod arrays;
 pub mod image_structure;
 pub mod images;
+pub mod ndarray;
 pub mod npy;
 pub mod npy_write;
 pub mod npz;
@@ -16,7 +18,7 @@ use std::path::Path;
 use thiserror::Error;
 
 use crate::error::DataError;
-pub use npy::{ArrayData, DType, NdArray, ShapeMismatch};
+pub use ndarray::{ArrayData, DType, NdArray, ShapeMismatch};
 pub use npy_write::write_npy;
 pub use pickle::Value;
 pub use pickle_write::{write_object_npy, PyValue};

@@ -2,7 +2,7 @@
 
 use std::path::Path;
 
-use super::npy::NdArray;
+use super::ndarray::NdArray;
 use super::FormatWriteError;
 use crate::atomic::write_bytes;
 

@@ -5,7 +5,8 @@ use std::io::{Read, Write};
 use std::ops::Range;
 use std::path::{Path, PathBuf};
 
-use super::npy::{self, DType, Descr, NdArray};
+use super::ndarray::{element_count, DType, Descr, NdArray};
+use super::npy;
 use super::npy_write::npy_bytes;
 use super::FormatWriteError;
 use crate::atomic::write_bytes;
@@ -106,7 +107,7 @@ impl Npz {
             };
             let kind = match header.descr {
                 Descr::Numeric { dtype, .. } => MemberKind::Numeric {
-                    bytes: npy::element_count(&header.shape)
+                    bytes: element_count(&header.shape)
                         .and_then(|n| n.checked_mul(dtype.size()))
                         .map_or(u64::MAX, |b| b as u64),
                     shape: header.shape,

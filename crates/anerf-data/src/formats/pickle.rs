@@ -18,7 +18,7 @@ use std::mem::size_of;
 
 use thiserror::Error;
 
-use super::npy::{element_count, Descr, NdArray};
+use super::ndarray::{element_count, ArrayData, Descr, NdArray};
 
 /// A decoded pickle value.
 #[derive(Debug, Clone, PartialEq)]
@@ -1171,7 +1171,7 @@ impl<'a> Machine<'a> {
                         dense[r * cols + c] += data[n];
                     }
                 }
-                NdArray::new(vec![rows, cols], super::npy::ArrayData::F64(dense))
+                NdArray::new(vec![rows, cols], ArrayData::F64(dense))
                     .map(Value::Array)
                     .map_err(|e| self.malformed(e.to_string()))
             }

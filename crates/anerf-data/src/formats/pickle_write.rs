@@ -9,7 +9,7 @@
 
 use std::path::Path;
 
-use super::npy::NdArray;
+use super::ndarray::NdArray;
 use super::npy_write::npy_header;
 use super::FormatWriteError;
 use crate::atomic::write_bytes;

@@ -7,9 +7,9 @@ use std::path::Path;
 use anerf_core::geometry::Skeleton;
 use glam::Vec3;
 
-use super::arrays::{faces, finite, points};
 use super::check::Checker;
 use crate::error::DataError;
+use crate::formats::arrays::{faces, finite, points};
 use crate::formats::{self, NdArray};
 use crate::smpl;
 use crate::subject::{check_body_size, BodyModel, SkinningWeights};

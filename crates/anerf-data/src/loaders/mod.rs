@@ -3,7 +3,6 @@
 //! `new_params/`, `new_vertices/`, `lbs/`) and differ in a few rules captured by [`DatasetKind`].
 
 mod annots;
-pub(crate) mod arrays;
 pub mod check;
 pub mod easymocap;
 mod image_files;
@@ -26,7 +25,7 @@ use self::image_files::MaskRule;
 use crate::error::DataError;
 use crate::formats;
 use crate::paths::Folder;
-use crate::subject::{check_body_size, DatasetKind, FrameRecord, PosedVertices, Subject};
+use crate::subject::{read_posed_vertices, DatasetKind, FrameRecord, PosedVertices, Subject};
 
 /// What a loader needs besides the dataset folder.
 #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
@@ -279,28 +278,6 @@ fn build_cameras(
         }
     }
     Ok(Some(cameras))
-}
-
-/// Posed world vertices of a frame (`new_vertices/{i}.npy`, `V × 3` metres, finite), `expected` of them
-/// when `lbs/tvertices.npy` gave the count.
-pub(crate) fn read_posed_vertices(
-    path: &Path,
-    expected: Option<usize>,
-) -> Result<Vec<glam::Vec3>, DataError> {
-    let v = arrays::points(&formats::read_npy(path)?, path, "vertices")?;
-    match expected {
-        Some(n) if v.len() != n => Err(DataError::invalid(
-            path,
-            format!(
-                "holds {} vertices, expected {n} like lbs/tvertices.npy",
-                v.len()
-            ),
-        )),
-        _ => {
-            check_body_size(&v, path, "the posed body")?;
-            Ok(v)
-        }
-    }
 }
 
 /// `new_*` when present (what Animatable NeRF uses), else the older fits, with a note.

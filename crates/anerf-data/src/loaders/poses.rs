@@ -5,9 +5,9 @@ use std::path::{Path, PathBuf};
 
 use anerf_core::geometry::Pose;
 
-use super::arrays::{self, field, finite};
 use crate::error::DataError;
 use crate::formats;
+use crate::formats::arrays::{self, field, finite};
 
 /// A pose file of the `params/{i}.npy` format: `poses` (3·K numbers, axis-angle, radians), `Rh`
 /// (axis-angle) and `Th` (metres) of the pose → world transform. Other keys (`shapes`) are ignored.

@@ -10,8 +10,8 @@ use glam::DVec3;
 
 use super::{Motion, MotionFormat, MotionFrame, Root};
 use crate::error::DataError;
+use crate::formats::arrays::{check_shape, finite, shape_text};
 use crate::formats::npz::{MemberKind, Npz};
-use crate::loaders::arrays::{check_shape, finite, shape_text};
 use crate::loaders::easymocap::fits::read_fit_file;
 use crate::loaders::poses::{numbered_files, read_pose};
 

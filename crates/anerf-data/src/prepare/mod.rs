@@ -3,6 +3,7 @@
 //! volumes, and the canonical body with its volume — cached on disk under a fingerprint of the inputs.
 
 pub mod cache;
+mod mask_band;
 pub mod nearest;
 pub mod new_pose;
 mod progress;
@@ -23,6 +24,7 @@ use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 use self::cache::{entry_dir, read_volume, volume_bytes, Fingerprint};
+pub use self::mask_band::edge_band;
 pub use self::new_pose::PosedBody;
 pub use self::progress::{PrepareProgress, Silent};
 pub use self::resize::ImageScale;
@@ -32,7 +34,6 @@ pub use self::volumes::{compute_volume, NearestMethod, VolumeGrid};
 use crate::atomic::write_bytes;
 use crate::error::DataError;
 use crate::formats::{self, images};
-use crate::sampler::edge_band;
 use crate::subject::{DatasetKind, SkinningWeights, Subject};
 
 /// Which frames to prepare: `start..end` (end exclusive, `None` = all) every `step`-th, by position in

@@ -17,8 +17,8 @@ pub(crate) use forward::rodrigues;
 pub use forward::{PosedSmpl, SmplParams};
 
 use crate::error::DataError;
+use crate::formats::arrays::{faces, finite, shape_text};
 use crate::formats::{self, NdArray, Value};
-use crate::loaders::arrays::{faces, finite, shape_text};
 
 /// An SMPL-family model: template, blend shapes, joint regressor, skinning weights, kinematic tree and
 /// triangles. `V` vertices, `K` joints, `B` shape coefficients; arrays keep the files' layouts, row-major.

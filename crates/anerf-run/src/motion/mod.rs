@@ -11,11 +11,11 @@ use burn::prelude::Device;
 
 use crate::memory::Work;
 use crate::{device, open_run, JobOptions};
-use anerf_train::checkpoint::Checkpoint;
 use anerf_train::config::ExperimentConfig;
 use anerf_train::experiment::Experiment;
 use anerf_train::render::{render_shot, Shot};
 use anerf_train::run_dir::RunDir;
+use anerf_train::training::checkpoint::Checkpoint;
 use anerf_train::training::fit_pose_codes;
 
 mod clip;

@@ -9,30 +9,17 @@ use anerf_core::model::AnimatableNerf;
 use anyhow::{bail, Result};
 use burn::optim::{GradientsParams, ModuleOptimizer};
 use burn::prelude::*;
-use serde::{Deserialize, Serialize};
+use serde::Serialize;
 
-use super::schedule::{learning_rate, Plateau};
-use super::window::{StepValues, Window, WindowMeans};
+use super::checkpoint::{Checkpoint, TrainerState};
+use super::loop_state::LoopState;
+use super::schedule::learning_rate;
+use super::window::{StepValues, WindowMeans};
 use super::{StageOutcome, TrainOptions};
-use crate::checkpoint::{Checkpoint, TrainerState};
 use crate::config::StageConfig;
 use crate::progress::StageProgress;
 use crate::run_dir::{MetricsLog, RunDir};
 use crate::stage::Stage;
-
-/// The loop's counters, saved with each checkpoint so that a resumed fit continues as if it had never
-/// stopped.
-#[derive(Debug, Clone, Default, Serialize, Deserialize)]
-pub struct LoopState {
-    /// Steps completed.
-    pub step: usize,
-    /// The early stop on a loss plateau (absent in checkpoints written before it existed).
-    #[serde(default)]
-    pub plateau: Plateau,
-    /// The log window open at this step (absent in checkpoints written before it existed).
-    #[serde(default)]
-    pub window: Window,
-}
 
 /// What one stage computes in a step; [`drive`] does everything around it.
 pub(super) trait Step {

@@ -5,7 +5,9 @@
 //! files (`stage2`). Stage 1's loss is `objective`'s; a stage-1 fit on several devices runs data-parallel
 //! (`parallel`).
 
+pub mod checkpoint;
 mod driver;
+mod loop_state;
 pub mod objective;
 mod parallel;
 pub mod schedule;
@@ -20,14 +22,14 @@ use burn::grad_clipping::GradientClippingConfig;
 use burn::optim::{AdamConfig, ModuleOptimizer};
 use burn::prelude::Device;
 
-pub use driver::LoopState;
+pub use loop_state::LoopState;
 pub use stage1::train_stage1;
 pub use stage2::{fit_pose_codes, train_stage2, PoseTarget, PoseTargets};
 
-use crate::checkpoint::{Checkpoint, TrainerState};
 use crate::experiment::Experiment;
 use crate::run_dir::RunDir;
 use crate::stage::Stage;
+use checkpoint::{Checkpoint, TrainerState};
 
 /// How a stage runs.
 #[derive(Debug, Clone, Copy)]

@@ -15,18 +15,19 @@ use burn::prelude::*;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
-use super::driver::{drive, LoopState, Record, RenderFigures, Single, Step};
+use super::driver::{drive, Record, RenderFigures, Single, Step};
+use super::loop_state::LoopState;
 use super::objective::{Objective, TermSums, WeighedTerms};
 use super::parallel::{whole_loss, Replicas, Shard, ShardedStep};
 use super::seeds::{stream_seed, Stream};
 use super::window::{StepValues, WindowMeans};
 use super::{check_sizes, optimizer, resume_point, StageOutcome, TrainOptions};
-use crate::checkpoint::TrainerState;
 use crate::config::StageConfig;
 use crate::experiment::Experiment;
 use crate::render::render_view;
 use crate::run_dir::RunDir;
 use crate::stage::Stage;
+use crate::training::checkpoint::TrainerState;
 
 /// Stage 1: trains (or resumes) on the training frames and views, writing checkpoints, logs and validation
 /// renders into `run`.

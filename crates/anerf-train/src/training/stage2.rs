@@ -14,15 +14,16 @@ use glam::Vec3;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
-use super::driver::{drive, LoopState, Record, RenderFigures, Single, Step};
+use super::driver::{drive, Record, RenderFigures, Single, Step};
+use super::loop_state::LoopState;
 use super::seeds::{stream_seed, Stream};
 use super::window::{StepValues, WindowMeans};
 use super::{check_sizes, optimizer, resume_point, StageOutcome, TrainOptions};
-use crate::checkpoint::{Checkpoint, TrainerState};
 use crate::config::StageConfig;
 use crate::experiment::Experiment;
 use crate::run_dir::RunDir;
 use crate::stage::Stage;
+use crate::training::checkpoint::{Checkpoint, TrainerState};
 
 /// A pose stage 2 fits a blend-weight code for: its model inputs (`code` =
 /// [`anerf_core::model::FrameCode::Novel`]) and the world-space box around its body (metres).
