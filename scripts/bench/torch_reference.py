@@ -50,7 +50,7 @@ def uniform_linear(d_in, d_out, fan_in, bias=True):
 
 
 class HashGrid(nn.Module):
-    """anerf_core::model::hash_grid::encode_reference: every corner of every level gathered with one
+    """anerf_core::kernels::hash_grid::reference::encode: every corner of every level gathered with one
     index_select (PyTorch has no hash-grid kernel on the CPU)."""
 
     PRIMES = (1, 2654435761, 805459861)

@@ -9,9 +9,6 @@ use glam::{Mat3, Mat4, Vec3};
 
 use super::skeleton::{BoneTransforms, GlobalTransform};
 
-/// Smallest `|det|` used when inverting a blended rotation part in [`BoneMatrices::inverse`]; see there.
-pub const DET_GUARD: f32 = 1e-6;
-
 /// One frame's bone transforms `A_k` on a device, `[K, 12]` (row-major top 3×4 of each matrix).
 #[derive(Debug, Clone)]
 pub struct BoneMatrices {
@@ -63,48 +60,12 @@ impl BoneMatrices {
     }
 
     /// Inverse LBS, pose space → canonical: `x_can = rot(M)⁻¹ (x_pose − t(M))` with `M` blended from the
-    /// observation weights; points `[N, 3]`, weights `[N, K]` → `[N, 3]`. Differentiable in both.
-    ///
-    /// Guard: where `|det rot(M)| < DET_GUARD` (weights split between opposing bones) the determinant is
-    /// replaced by `DET_GUARD`, so the output stays finite (and far outside the body, where the canonical
-    /// box check zeroes its density) instead of becoming NaN; no gradient flows through the replaced value.
-    ///
-    /// On the flex and CubeCL (GPU) backends this is one fused kernel ([`crate::kernels::warp::inverse_skinning`];
-    /// the bones' gradient, where they are tracked, from the points' one), elsewhere
-    /// [`Self::inverse_reference`].
+    /// observation weights; points `[N, 3]`, weights `[N, K]` → `[N, 3]`. Differentiable in both (and in the
+    /// bones, where they are tracked). A blended rotation whose `|det|` is below
+    /// [`crate::kernels::warp::DET_GUARD`] (weights split between opposing bones) is inverted with the guard
+    /// instead, so the output stays finite. The kernel or its reference: [`crate::kernels::warp::inverse_skinning`].
     pub fn inverse(&self, points: Tensor<2>, weights: Tensor<2>) -> Tensor<2> {
-        if crate::kernels::available(&points.device()) {
-            crate::kernels::warp::inverse_skinning(points, weights, self.rows())
-        } else {
-            self.inverse_reference(points, weights)
-        }
-    }
-
-    /// [`Self::inverse`] in tensor operations (differentiable in the bones too).
-    pub fn inverse_reference(&self, points: Tensor<2>, weights: Tensor<2>) -> Tensor<2> {
-        let m = self.blend(weights);
-        let row = |i: usize| m.clone().narrow(1, 4 * i, 3);
-        let (r0, r1, r2) = (row(0), row(1), row(2));
-        let t = Tensor::cat(
-            vec![
-                m.clone().narrow(1, 3, 1),
-                m.clone().narrow(1, 7, 1),
-                m.narrow(1, 11, 1),
-            ],
-            1,
-        );
-        let d = points - t;
-        // rot(M)⁻¹ = [r1×r2, r2×r0, r0×r1] / det (columns), det = r0·(r1×r2).
-        let c0 = r1.clone().cross(r2.clone(), 1);
-        let c1 = r2.cross(r0.clone(), 1);
-        let c2 = r0.clone().cross(r1, 1);
-        let det = (r0 * c0.clone()).sum_dim(1);
-        let small = det.clone().abs().lower_elem(DET_GUARD);
-        let det = det.mask_fill(small, DET_GUARD);
-        let d0 = d.clone().narrow(1, 0, 1);
-        let d1 = d.clone().narrow(1, 1, 1);
-        let d2 = d.narrow(1, 2, 1);
-        (c0 * d0 + c1 * d1 + c2 * d2) / det
+        crate::kernels::warp::inverse_skinning(points, weights, self.rows())
     }
 }
 

@@ -334,75 +334,21 @@ impl VolumeTensor {
         self.interpolate(&self.distance, points)
     }
 
-    /// Trilinear interpolation of the rows of `table` (`[nodes, C]`) at points `[N, 3]` → `[N, C]`: one fused
-    /// kernel on the flex and CubeCL (GPU) backends ([`crate::kernels::warp::trilinear`]), else
-    /// [`Self::interpolate_reference`].
+    /// Trilinear interpolation of the rows of `table` (`[nodes, C]`) at points `[N, 3]` → `[N, C]`
+    /// ([`crate::kernels::warp::trilinear`]).
     fn interpolate(&self, table: &Tensor<2>, points: Tensor<2>) -> Tensor<2> {
-        if !crate::kernels::available(&points.device()) {
-            return self.interpolate_reference(table, points);
-        }
+        crate::kernels::warp::trilinear(points, table.clone(), self.grid())
+    }
+
+    /// The volume's node layout, as the kernels take it.
+    pub(crate) fn grid(&self) -> TrilinearGrid {
         let (bounds, dims) = (self.host.volume.bounds, self.host.volume.dims);
         let size = bounds.size();
-        let grid = TrilinearGrid {
+        TrilinearGrid {
             min: bounds.min.to_array(),
             scale: std::array::from_fn(|a| (dims[a] - 1) as f32 / size[a]),
             dims,
-        };
-        crate::kernels::warp::trilinear(points, table.clone(), grid)
-    }
-
-    /// [`Self::interpolate`] in tensor operations.
-    pub(crate) fn interpolate_reference(&self, table: &Tensor<2>, points: Tensor<2>) -> Tensor<2> {
-        let [n, _] = points.dims();
-        let channels = table.dims()[1];
-        let (bounds, dims) = (self.host.volume.bounds, self.host.volume.dims);
-        let size = bounds.size();
-        let mut base = Vec::with_capacity(3);
-        let mut frac = Vec::with_capacity(3);
-        for a in 0..3 {
-            let cells = (dims[a] - 1) as f32;
-            let u = ((points.clone().narrow(1, a, 1) - bounds.min[a]) * (cells / size[a]))
-                .clamp(0.0, cells);
-            let i0 = u
-                .clone()
-                .detach()
-                .floor()
-                .clamp(0.0, (dims[a] as f32 - 2.0).max(0.0));
-            frac.push(u - i0.clone());
-            base.push(i0);
         }
-        let (ny, nz) = (dims[1] as f32, dims[2] as f32);
-        let mut indices = Vec::with_capacity(8);
-        let mut weights = Vec::with_capacity(8);
-        for c in 0..8 {
-            let mut idx: Vec<Tensor<2>> = Vec::with_capacity(3);
-            let mut w: Option<Tensor<2>> = None;
-            for a in 0..3 {
-                let hi = (c >> a) & 1 == 1;
-                let i = if hi {
-                    (base[a].clone() + 1.0).clamp_max((dims[a] - 1) as f32)
-                } else {
-                    base[a].clone()
-                };
-                idx.push(i);
-                let wa = if hi {
-                    frac[a].clone()
-                } else {
-                    frac[a].clone().neg() + 1.0
-                };
-                w = Some(match w {
-                    Some(w) => w * wa,
-                    None => wa,
-                });
-            }
-            let flat = (idx[0].clone() * ny + idx[1].clone()) * nz + idx[2].clone();
-            indices.push(flat.reshape([n]));
-            weights.push(w.expect("three axes"));
-        }
-        let index = Tensor::cat(indices, 0).int();
-        let gathered = table.clone().select(0, index).reshape([8, n, channels]);
-        let w = Tensor::stack::<3>(weights, 0);
-        (gathered * w).sum_dim(0).reshape([n, channels])
     }
 }
 
@@ -507,7 +453,11 @@ pub(crate) mod tests {
             assert!(crate::kernels::available(&device));
             tensor.interpolate(&tensor.table, p.clone())
         } else {
-            tensor.interpolate_reference(&tensor.table, p.clone())
+            crate::kernels::warp::reference::trilinear(
+                p.clone(),
+                tensor.table.clone(),
+                &tensor.grid(),
+            )
         };
         let c = crate::tensor::from_rows(&coeff, n, 4, &device);
         let grads = (out.clone() * c).sum().backward();

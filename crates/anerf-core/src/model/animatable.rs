@@ -557,45 +557,12 @@ impl AnimatableNerf {
         let r = rays.len();
         let n = r * s;
         let depths = stratified_depths(rays.near.clone(), rays.far.clone(), s, jitter);
-        // The flat indices `[occupied]` of the shaded samples, the counts of survivors and of shaded
-        // samples, and their shading.
-        let (index, m, occupied, shaded) = if culls_on_device(&device) {
-            let survivors = self.cull_on_device(rays, depths.clone(), frame);
-            let (rows, shaded) = self.shade_points(
-                survivors.points,
-                survivors.prior,
-                survivors.directions,
-                frame,
-                canonical,
-            );
-            let (m, occupied) = (survivors.index.dims()[0], rows.len());
-            let index = if occupied == m {
-                survivors.index
-            } else {
-                let rows = Tensor::<1, Int>::from_data(TensorData::new(rows, [occupied]), &device);
-                survivors.index.select(0, rows)
-            };
-            (index, m, occupied, shaded)
-        } else {
-            // Culling runs on the host: only the survivors' positions and directions are uploaded.
-            let survivors = cull_samples(
-                &SampleRays {
-                    origins: &to_host(rays.origins.clone()),
-                    directions: &to_host(rays.directions.clone()),
-                    depths: &to_host(depths.clone()),
-                    samples: s,
-                },
-                &frame.global,
-                &frame.volume,
-                self.config.cull_distance,
-            );
-            let (rows, shaded) =
-                self.shade_survivors(&survivors.points, survivors.directions, frame, canonical);
-            let occupied = rows.len();
-            let global: Vec<i64> = rows.iter().map(|&j| survivors.index[j as usize]).collect();
-            let index = Tensor::<1, Int>::from_data(TensorData::new(global, [occupied]), &device);
-            (index, survivors.index.len(), occupied, shaded)
-        };
+        let Culled {
+            index,
+            surviving,
+            occupied,
+            shaded,
+        } = Culling::for_device(&device).shade(self, rays, depths.clone(), frame, canonical);
 
         let consistency = with_consistency.then(|| {
             ConsistencyTerms::new(
@@ -623,7 +590,7 @@ impl AnimatableNerf {
             acc: out.acc,
             depth: out.depth,
             consistency,
-            surviving_samples: m,
+            surviving_samples: surviving,
             occupied_samples: occupied,
             total_samples: n,
         }
@@ -643,10 +610,103 @@ pub(super) fn pose_samples(
     world_to_pose(world.reshape([r * s, 3]), global)
 }
 
-/// Whether the render culls on the device: on the GPU backends, where reading the batch back and uploading
-/// the survivors would cost more than the lookups; the CPU backends cull on the host.
-fn culls_on_device(device: &Device) -> bool {
-    crate::device::runs_on_gpu(device)
+/// Where a render culls its samples (drops those far from the body before any network sees them). The
+/// one decision, from the device: the GPU backends cull on the device, where reading the batch back and
+/// uploading the survivors would cost more than the lookups; the CPU backends cull on the host and upload
+/// only the survivors' positions and directions.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Culling {
+    Host,
+    Device,
+}
+
+/// The shaded survivors of a render's samples.
+struct Culled {
+    /// `[occupied]` flat indices `ray · S + sample` of the shaded samples.
+    index: Tensor<1, Int>,
+    /// Samples that survived culling, and those of them that were shaded (in occupied canonical cells).
+    surviving: usize,
+    occupied: usize,
+    shaded: ShadedSamples,
+}
+
+impl Culling {
+    /// The culling `device` runs.
+    pub fn for_device(device: &Device) -> Self {
+        if crate::device::runs_on_gpu(device) {
+            Culling::Device
+        } else {
+            Culling::Host
+        }
+    }
+
+    /// Culls the samples of `rays` at `depths` (`[R, S]`) and shades the survivors with `model`.
+    fn shade(
+        self,
+        model: &AnimatableNerf,
+        rays: &RayBatch,
+        depths: Tensor<2>,
+        frame: &FrameInputs,
+        canonical: &CanonicalInputs,
+    ) -> Culled {
+        let device = rays.origins.device();
+        match self {
+            Culling::Device => {
+                let survivors = model.cull_on_device(rays, depths, frame);
+                let (rows, shaded) = model.shade_points(
+                    survivors.points,
+                    survivors.prior,
+                    survivors.directions,
+                    frame,
+                    canonical,
+                );
+                let (surviving, occupied) = (survivors.index.dims()[0], rows.len());
+                let index = if occupied == surviving {
+                    survivors.index
+                } else {
+                    let rows =
+                        Tensor::<1, Int>::from_data(TensorData::new(rows, [occupied]), &device);
+                    survivors.index.select(0, rows)
+                };
+                Culled {
+                    index,
+                    surviving,
+                    occupied,
+                    shaded,
+                }
+            }
+            Culling::Host => {
+                let survivors = cull_samples(
+                    &SampleRays {
+                        origins: &to_host(rays.origins.clone()),
+                        directions: &to_host(rays.directions.clone()),
+                        depths: &to_host(depths.clone()),
+                        samples: depths.dims()[1],
+                    },
+                    &frame.global,
+                    &frame.volume,
+                    model.config.cull_distance,
+                );
+                let (rows, shaded) = model.shade_survivors(
+                    &survivors.points,
+                    survivors.directions,
+                    frame,
+                    canonical,
+                );
+                let occupied = rows.len();
+                let global: Vec<i64> = rows.iter().map(|&j| survivors.index[j as usize]).collect();
+                Culled {
+                    index: Tensor::<1, Int>::from_data(
+                        TensorData::new(global, [occupied]),
+                        &device,
+                    ),
+                    surviving: survivors.index.len(),
+                    occupied,
+                    shaded,
+                }
+            }
+        }
+    }
 }
 
 /// The samples that survive culling, on the device ([`AnimatableNerf::cull_on_device`]).

@@ -4,7 +4,6 @@
 use burn::module::Param;
 use burn::nn::{Embedding, EmbeddingConfig, Linear};
 use burn::prelude::*;
-use burn::tensor::activation::softmax;
 
 use super::encoding::{encode_points, point_input, PositionalEncoding};
 use super::hash_grid::HashGrid;
@@ -106,25 +105,13 @@ pub fn combine(
     prior: Tensor<2>,
 ) -> Tensor<2> {
     match parameterisation {
-        BlendParameterisation::LogSoftmax if crate::kernels::available(&prior.device()) => {
-            crate::kernels::warp::prior_softmax(prior, residual)
-        }
-        BlendParameterisation::LogSoftmax => prior_softmax_reference(prior, residual),
+        BlendParameterisation::LogSoftmax => crate::kernels::warp::prior_softmax(prior, residual),
         BlendParameterisation::ExpNorm => {
             // exp(F) is clamped at e^30 to stay finite; rows then still normalise to 1.
             let w = residual.clamp_max(30.0).exp() + prior;
             w.clone() / w.sum_dim(1)
         }
     }
-}
-
-/// `softmax(log(w^s + ε) + F)` in tensor operations: the log-softmax parameterisation where the fused
-/// kernel ([`crate::kernels::warp::prior_softmax`]) is not available.
-pub fn prior_softmax_reference(prior: Tensor<2>, residual: Tensor<2>) -> Tensor<2> {
-    softmax(
-        (prior + crate::kernels::warp::PRIOR_EPSILON).log() + residual,
-        1,
-    )
 }
 
 #[cfg(test)]

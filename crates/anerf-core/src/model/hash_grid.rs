@@ -3,17 +3,14 @@
 //! fit in its table of `T` rows, else at a spatial hash of the vertex), read by trilinear interpolation and
 //! concatenated over levels.
 //!
-//! This module holds the learned module and its sizes. Three implementations compute the same function:
-//! the hand-written CPU and CubeCL kernels of [`crate::kernels::hash_grid`] (through a Burn backend
-//! extension on the flex and wgpu backends, forward and backward) and the plain-tensor reference here
-//! ([`encode_reference`]: every corner of every level gathered with one `select`), which serves every other
-//! backend and which the kernels' tests compare against.
+//! This module holds the learned module and its sizes; [`crate::kernels::hash_grid::encode`] computes the
+//! encoding (the hand-written CPU and CubeCL kernels, or their plain-tensor reference on other backends).
 
 use burn::module::{Initializer, Param};
 use burn::prelude::*;
 use serde::{Deserialize, Serialize};
 
-use crate::kernels::hash_grid::{extension, GridSpec, HASH_PRIMES};
+use crate::kernels::hash_grid::GridSpec;
 
 /// Sizes of a hash grid (a part of [`crate::model::ModelConfig`]).
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
@@ -128,70 +125,8 @@ impl HashGrid {
     }
 
     /// Encodes points `[N, 3]` (metres, in the frame the grid covers) → `[N, L·F]`, differentiable in the
-    /// points and the table. Uses the kernels on the flex and wgpu backends, the tensor reference elsewhere.
+    /// points and the table ([`crate::kernels::hash_grid::encode`]).
     pub fn forward(&self, points: Tensor<2>) -> Tensor<2> {
-        if crate::kernels::available(&points.device()) {
-            extension::encode(points, self.table.val(), &self.spec)
-        } else {
-            encode_reference(points, self.table.val(), &self.spec)
-        }
+        crate::kernels::hash_grid::encode(points, self.table.val(), &self.spec)
     }
-}
-
-/// The encoding in plain tensor operations: all `8 L` corners of every point are gathered from the table
-/// with one `select` (one `select` per corner makes the backward pass about 25× slower).
-pub fn encode_reference(points: Tensor<2>, table: Tensor<2>, spec: &GridSpec) -> Tensor<2> {
-    let [n, _] = points.dims();
-    let (levels, f) = (spec.levels(), spec.features);
-    let h = spec.half_extent;
-    let unit = ((points + h) / (2.0 * h)).clamp(0.0, 1.0);
-    let mut indices = Vec::with_capacity(8 * levels);
-    let mut weights = Vec::with_capacity(8 * levels);
-    for (level, &res) in spec.resolutions.iter().enumerate() {
-        let x = unit.clone() * res as f32;
-        let base = x.clone().detach().floor().clamp(0.0, (res - 1) as f32);
-        let frac = x - base.clone();
-        let base = base.int();
-        let axis = |t: &Tensor<2, Int>, a: usize| t.clone().narrow(1, a, 1);
-        for c in 0..8 {
-            let v: Vec<Tensor<2, Int>> = (0..3)
-                .map(|a| axis(&base, a) + ((c >> a) & 1) as i64)
-                .collect();
-            let row = if spec.is_dense(level) {
-                let side = res as i64 + 1;
-                v[0].clone() + (v[1].clone() + v[2].clone() * side) * side
-            } else {
-                // The kernels hash in u32 arithmetic. The primes as (wrapped) i32 values fit every
-                // backend's integers (wgpu's are i32), and the products' low 32 bits, all the mask keeps,
-                // are the same in wrapping i32, i64 and u32 arithmetic.
-                let prime = |a: usize| HASH_PRIMES[a] as i32 as i64;
-                (v[0].clone() * prime(0))
-                    .bitwise_xor(v[1].clone() * prime(1))
-                    .bitwise_xor(v[2].clone() * prime(2))
-                    .bitwise_and_scalar(spec.table_size as i64 - 1)
-            };
-            indices.push((row + (level * spec.table_size) as i64).reshape([n]));
-            let w = (0..3)
-                .map(|a| {
-                    let fa = frac.clone().narrow(1, a, 1);
-                    if (c >> a) & 1 == 1 {
-                        fa
-                    } else {
-                        fa.neg() + 1.0
-                    }
-                })
-                .reduce(|a, b| a * b)
-                .expect("three axes");
-            weights.push(w);
-        }
-    }
-    let gathered = table
-        .select(0, Tensor::cat(indices, 0))
-        .reshape([levels, 8, n, f]);
-    let w = Tensor::stack::<3>(weights, 0).reshape([levels, 8, n, 1]);
-    (gathered * w)
-        .sum_dim(1)
-        .reshape([levels, n, f])
-        .swap_dims(0, 1)
-        .reshape([n, levels * f])
 }

@@ -15,11 +15,11 @@ use burn_cubecl::ops::into_data_sync;
 use burn_cubecl::tensor::CubeTensor;
 
 use super::cube::{self, AtomicScheme};
+use super::reference::encode as encode_reference;
 use super::tests::{gradients, points, spec_with, wave};
 use super::*;
 use crate::device::cpu_device;
 use crate::device::probe::gpu_devices_for_test;
-use crate::model::hash_grid::encode_reference;
 use crate::tensor::{from_rows, to_host};
 use crate::DeviceChoice;
 use anerf_testing::{assert_close, Tolerance};

@@ -1,7 +1,7 @@
 //! The hash-grid encoding as a Burn backend extension: the flex backend runs the CPU [`super::cpu`],
 //! the CubeCL backend (with the `wgpu` or `cuda` feature) the kernels of `super::cube`; the autodiff backend wraps
 //! either with a hand-written backward pass (table gradient and point gradient). Other backends use
-//! [`crate::model::hash_grid::encode_reference`] (see [`crate::kernels::available`]).
+//! [`super::reference::encode`] (see [`super::encode`]).
 
 use burn::backend::autodiff::checkpoint::base::Checkpointer;
 use burn::backend::autodiff::checkpoint::strategy::CheckpointStrategy;

@@ -1,14 +1,28 @@
 //! The hash-grid encoding's kernels ([`crate::model::hash_grid`] holds the learned module): CPU kernels on
-//! plain slices ([`cpu`]), CubeCL kernels for Burn's CubeCL backend (`cube`, with the `wgpu` or `cuda` feature) and the Burn
-//! backend extension that routes a tensor operation to one of them and supplies the backward pass
-//! ([`extension`]).
+//! plain slices ([`cpu`]), CubeCL kernels for Burn's CubeCL backend (`cube`, with the `wgpu` or `cuda`
+//! feature), the Burn backend extension that routes a tensor operation to one of them and supplies the
+//! backward pass ([`extension`]), and the plain-tensor [`reference`]; [`encode`] picks between them.
 
 pub mod cpu;
 #[cfg(any(feature = "wgpu", feature = "cuda"))]
 mod cube;
 pub mod extension;
+pub mod reference;
+
+use burn::prelude::*;
 
 pub use cpu::HASH_PRIMES;
+
+/// Encodes points `[N, 3]` (metres, in the frame the grid covers) with the level tables `table`
+/// (`[L·T, F]`) → `[N, L·F]`, differentiable in the points and the table: the kernels where
+/// [`super::available`], the [`reference`] elsewhere.
+pub fn encode(points: Tensor<2>, table: Tensor<2>, spec: &GridSpec) -> Tensor<2> {
+    if super::available(&points.device()) {
+        extension::encode(points, table, spec)
+    } else {
+        reference::encode(points, table, spec)
+    }
+}
 
 /// A hash grid with its resolutions resolved: everything the kernels need besides the tensors.
 #[derive(Debug, Clone, PartialEq)]

@@ -5,7 +5,7 @@
 use glam::Vec3;
 use rayon::prelude::*;
 
-use crate::geometry::skinning::DET_GUARD;
+use super::DET_GUARD;
 use crate::kernels::fastmath;
 use crate::kernels::trilinear::{cell_position_gradient, corner_weights};
 

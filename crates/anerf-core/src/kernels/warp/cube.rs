@@ -14,7 +14,7 @@ use cubecl::prelude::*;
 
 use super::cpu::{TrilinearGrid, PRIOR_EPSILON};
 use super::extension::{check_skinning, check_trilinear, FusedBackend};
-use crate::geometry::skinning::DET_GUARD;
+use super::DET_GUARD;
 use crate::kernels::cube::{contiguous_f32, dims, empty_f32, side_sign, side_weight, Units};
 
 /// A 3-vector of the kernels' arithmetic.

@@ -10,6 +10,7 @@
 
 use burn::prelude::*;
 
+use super::reference::prior_softmax as prior_softmax_reference;
 use super::tests::{
     compare, differentiate, objective_coefficients, singular_blends, skinning, skinning_inputs,
     softmax_inputs,
@@ -20,7 +21,6 @@ use crate::device::probe::gpu_devices_for_test;
 use crate::geometry::lbs::tests::TestRng;
 use crate::geometry::volume::tests::wavy_lookup;
 use crate::geometry::BoneMatrices;
-use crate::model::blend::prior_softmax_reference;
 use crate::tensor::{from_rows, to_host};
 use crate::DeviceChoice;
 use anerf_testing::{assert_close, Tolerance};

@@ -1,11 +1,11 @@
 use burn::prelude::*;
 use glam::{Mat4, Vec3};
 
+use super::reference::prior_softmax as prior_softmax_reference;
 use super::*;
 use crate::device::cpu_device;
 use crate::geometry::lbs::tests::{random_skeleton_and_pose, TestRng};
 use crate::geometry::{BoneMatrices, BoneTransforms, CanonicalPose};
-use crate::model::blend::prior_softmax_reference;
 use crate::tensor::{from_rows, to_host};
 use anerf_testing::{assert_close, Tolerance};
 
@@ -98,7 +98,7 @@ pub(super) fn skinning(
         if fused {
             matrices.inverse(p, w)
         } else {
-            matrices.inverse_reference(p, w)
+            reference::inverse_skinning(p, w, matrices.rows())
         }
     })
 }
@@ -135,7 +135,7 @@ fn inverse_skinning_passes_the_bones_their_gradient() {
             let out = if fused {
                 matrices.inverse(p, w.clone())
             } else {
-                matrices.inverse_reference(p, w.clone())
+                reference::inverse_skinning(p, w.clone(), matrices.rows())
             };
             out.reshape([24, n * 3 / 24])
         })
