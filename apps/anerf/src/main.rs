@@ -17,14 +17,14 @@ static ALLOCATOR: alloc::BlockCache = alloc::BlockCache::new();
 
 fn main() -> ExitCode {
     // `anerf_run::open_device` re-runs this binary to check a GPU backend in a child process.
-    anerf_core::device::probe::exit_if_probe_child();
+    anerf_device::probe::exit_if_probe_child();
     end_quietly_on_closed_pipe();
     let cli = Cli::parse();
-    if let Err(e) = anerf_core::device::threads::init_pool() {
+    if let Err(e) = anerf_device::threads::init_pool() {
         eprintln!("warning: compute threads keep rayon's defaults: {e}");
     }
     // Every command runs on a compute thread, so that the backend's parallel ops fork in place.
-    match anerf_core::device::threads::on_pool(|| run(cli)) {
+    match anerf_device::threads::on_pool(|| run(cli)) {
         Ok(code) => code,
         Err(e) => {
             eprintln!("error: {}", error_chain(&e));

@@ -7,12 +7,12 @@ mod common;
 use std::path::{Path, PathBuf};
 use std::sync::atomic::AtomicBool;
 
-use anerf_core::device::cpu_device;
 use anerf_core::geometry::skinning::points_tensor;
 use anerf_core::model::AnimatableNerf;
 use anerf_core::tensor::to_host;
 use anerf_data::formats::npz::write_npz;
 use anerf_data::formats::{ArrayData, NdArray};
+use anerf_device::cpu_device;
 use anerf_eval::images::{read_mask, read_rgb};
 use anerf_eval::report::{read_records_json, EvalSplit};
 use anerf_eval::ImageMetrics;

@@ -10,7 +10,7 @@ use std::path::{Path, PathBuf};
 use std::process::Command;
 use std::sync::atomic::AtomicBool;
 
-use anerf_core::device::cpu_device;
+use anerf_device::cpu_device;
 use anerf_train::config::{self, ExperimentConfig};
 use anerf_train::run_start::RunStart;
 use anerf_train::stage::Stage;

@@ -10,7 +10,7 @@ use std::process::Command;
 use std::sync::atomic::AtomicBool;
 use std::time::{Duration, Instant};
 
-use anerf_core::device::cpu_device;
+use anerf_device::cpu_device;
 use anerf_eval::ImageMetrics;
 use anerf_train::config::{self, ExperimentConfig};
 use anerf_train::experiment::Experiment;

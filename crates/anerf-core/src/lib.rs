@@ -7,7 +7,6 @@
 //! * frames: **world** (calibrated capture frame) → **pose space** (`x_pose = R_hᵀ (x_world − T_h)`) →
 //!   **canonical** (T-pose) through inverse linear blend skinning.
 
-pub mod device;
 pub mod error;
 pub mod geometry;
 pub mod ids;
@@ -17,6 +16,6 @@ pub mod model;
 pub mod render;
 pub mod tensor;
 
-pub use device::DeviceChoice;
+pub use anerf_device::DeviceChoice;
 pub use error::GeometryError;
 pub use ids::{FrameId, ViewId};

@@ -3,7 +3,7 @@
 //!
 //! Compiled only with the `wgpu` feature: `cargo test -p anerf-core --features wgpu[,cuda] --test
 //! gpu_backends` (add `-- --nocapture` to see the adapter and the differences). Each test first checks each
-//! GPU backend in a child process (`anerf_core::device::probe`); where one does not work (not compiled, no
+//! GPU backend in a child process (`anerf_device::probe`); where one does not work (not compiled, no
 //! driver, or one that fails or crashes) it prints why and goes on with the others. Where the check passes, the comparison runs and must pass. On a machine
 //! without a GPU, Mesa's lavapipe serves (docs/PERFORMANCE.md, "GPU backends"; `scripts/gpu/lavapipe.sh`).
 //!
@@ -12,8 +12,6 @@
 //! lavapipe (Mesa 22.3 and 25.0, Vulkan and OpenGL) and on an H200 through Vulkan. CUDA's matmuls run on
 //! TF32 tensor cores, so results that pass through one are compared within `matmul_tolerance` (1e-2).
 
-use anerf_core::device::cpu_device;
-use anerf_core::device::probe::{gpu_devices_for_test, matmul_tolerance};
 use anerf_core::geometry::skinning::points_tensor;
 use anerf_core::geometry::BlendWeightVolume;
 use anerf_core::geometry::{
@@ -21,6 +19,8 @@ use anerf_core::geometry::{
 };
 use anerf_core::model::mlp::SkipMlpConfig;
 use anerf_core::tensor::{parameter_gradients, to_host};
+use anerf_device::cpu_device;
+use anerf_device::testing::{gpu_devices_for_test, matmul_tolerance};
 use burn::optim::GradientsParams;
 use burn::prelude::*;
 use burn::tensor::Distribution;

@@ -14,10 +14,10 @@ mod stages;
 
 use std::path::Path;
 
-use anerf_core::device::probe::{checked_device, CheckedDevice};
-use anerf_core::device::DeviceSpec;
 use anerf_core::model::AnimatableNerf;
 use anerf_core::DeviceChoice;
+use anerf_device::probe::{checked_device, CheckedDevice};
+use anerf_device::DeviceSpec;
 use anyhow::{bail, Context, Result};
 use burn::prelude::Device;
 

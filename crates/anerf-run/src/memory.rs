@@ -3,8 +3,8 @@
 //! physical memory. (On GPU devices the device's own memory is not queried; the host bound still catches
 //! sizes that fit nowhere.)
 
-use anerf_core::device::host_memory_bytes;
 use anerf_core::model::ModelConfig;
+use anerf_device::host_memory_bytes;
 use anyhow::{bail, Result};
 
 use anerf_train::config::ExperimentConfig;

@@ -6,7 +6,7 @@ mod common;
 
 use std::path::{Path, PathBuf};
 
-use anerf_core::device::cpu_device;
+use anerf_device::cpu_device;
 use anerf_run::mesh::MeshJob;
 use anerf_run::{capture_to_gltf, ExportJob, TRAINING_FPS};
 use anerf_train::experiment::Experiment;

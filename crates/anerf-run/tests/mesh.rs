@@ -3,12 +3,12 @@
 
 mod common;
 
-use anerf_core::device::cpu_device;
 use anerf_core::geometry::skinning::points_tensor;
 use anerf_core::model::AnimatableNerf;
 use anerf_core::tensor::to_host;
 use anerf_core::FrameId;
 use anerf_data::synthetic::{write_subject, SyntheticSpec};
+use anerf_device::cpu_device;
 use anerf_run::mesh::{repose, MeshJob};
 use anerf_train::experiment::Experiment;
 use common::tiny;

@@ -7,10 +7,10 @@ mod common;
 use std::path::Path;
 use std::sync::atomic::AtomicBool;
 
-use anerf_core::device::cpu_device;
 use anerf_core::geometry::Pose;
 use anerf_core::model::FrameInputs;
 use anerf_core::FrameId;
+use anerf_device::cpu_device;
 use anerf_train::experiment::Experiment;
 use anerf_train::render::{render_shot, Shot};
 use anerf_train::run_start::RunStart;

@@ -2,8 +2,8 @@
 
 use std::path::{Path, PathBuf};
 
-use anerf_core::device::DeviceSpec;
 use anerf_core::model::ModelPreset;
+use anerf_device::DeviceSpec;
 use anerf_train::config::{self, ExperimentConfig, FrameRange, Settings};
 use anerf_train::training::StageOutcome;
 use anyhow::{bail, Result};

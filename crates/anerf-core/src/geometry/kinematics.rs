@@ -304,9 +304,9 @@ fn column_vectors(flat: &[f32], device: &Device) -> Tensor<3> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::device::cpu_device;
     use crate::geometry::lbs::tests::{random_skeleton_and_pose, TestRng};
     use crate::tensor::{from_rows, to_host};
+    use anerf_device::cpu_device;
     use anerf_testing::{assert_close, Tolerance};
 
     fn rows_of(bones: &crate::geometry::BoneTransforms) -> Vec<f32> {

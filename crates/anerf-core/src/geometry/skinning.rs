@@ -129,7 +129,7 @@ mod tests {
 
     #[test]
     fn tensor_lbs_matches_single_point_lbs_and_inverts() {
-        let device = crate::device::cpu_device();
+        let device = anerf_device::cpu_device();
         let mut rng = TestRng(11);
         let (a, _, points, weights) = setup(&mut rng, 200);
         let bones = BoneMatrices::new(&a, &device);
@@ -161,7 +161,7 @@ mod tests {
                 w,
             ))
         };
-        let reference = run(crate::device::cpu_device());
+        let reference = run(anerf_device::cpu_device());
         let ndarray = run(crate::DeviceChoice::Ndarray
             .device()
             .expect("the ndarray feature is on by default"));
@@ -172,7 +172,7 @@ mod tests {
 
     #[test]
     fn world_to_pose_matches_glam() {
-        let device = crate::device::cpu_device();
+        let device = anerf_device::cpu_device();
         let mut rng = TestRng(3);
         let (_, global, points, _) = setup(&mut rng, 50);
         let got = to_host(world_to_pose(points_tensor(&points, &device), &global));
@@ -186,7 +186,7 @@ mod tests {
 
     #[test]
     fn singular_blends_stay_finite() {
-        let device = crate::device::cpu_device();
+        let device = anerf_device::cpu_device();
         let a = BoneTransforms::from_matrices(vec![
             Mat4::IDENTITY,
             Mat4::from_rotation_z(std::f32::consts::PI),
@@ -203,7 +203,7 @@ mod tests {
     /// Central differences of `Σ inverse(x, w) · c` in every input coordinate against autodiff.
     #[test]
     fn inverse_gradients_match_finite_differences() {
-        let device = crate::device::cpu_device().autodiff();
+        let device = anerf_device::cpu_device().autodiff();
         let mut rng = TestRng(5);
         let (a, _, points, weights) = setup(&mut rng, 4);
         let bones = BoneMatrices::new(&a, &device);

@@ -355,9 +355,9 @@ impl VolumeTensor {
 #[cfg(test)]
 pub(crate) mod tests {
     use super::*;
-    use crate::device::cpu_device;
     use crate::geometry::skinning::points_tensor;
     use crate::tensor::to_host;
+    use anerf_device::cpu_device;
 
     /// A volume whose every channel is an affine function of the node position, so trilinear interpolation
     /// reproduces it exactly inside the box.

@@ -39,8 +39,8 @@ pub(crate) fn dims(t: &FlexTensor) -> [usize; 2] {
 mod tests {
     use burn::tensor::activation::relu;
 
-    use crate::device::cpu_device;
     use crate::tensor::{from_rows, to_host};
+    use anerf_device::cpu_device;
 
     /// The vendored burn-flex splits element-wise loops over large buffers across threads
     /// (`vendor/burn-flex/src/par.rs`). Above its threshold (2^16 elements), on unique and shared, dense,

@@ -633,7 +633,7 @@ struct Culled {
 impl Culling {
     /// The culling `device` runs.
     pub fn for_device(device: &Device) -> Self {
-        if crate::device::runs_on_gpu(device) {
+        if anerf_device::runs_on_gpu(device) {
             Culling::Device
         } else {
             Culling::Host

@@ -117,8 +117,8 @@ pub fn combine(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::device::cpu_device;
     use crate::tensor::{from_rows, to_host};
+    use anerf_device::cpu_device;
 
     #[test]
     fn zero_residual_returns_the_prior_under_both_parameterisations() {

@@ -57,8 +57,8 @@ pub fn point_input(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::device::cpu_device;
     use crate::tensor::{from_rows, to_host};
+    use anerf_device::cpu_device;
 
     #[test]
     fn layout_matches_the_reference_embedder() {

@@ -55,7 +55,7 @@ pub const GPU_CHUNK_ROWS: usize = 1024;
 /// docs/PERFORMANCE.md). The CPU backend gains nothing from it and keeps the plain matmul.
 pub fn rows_matmul(x: Tensor<2>, w: Tensor<2>) -> Tensor<2> {
     let [n, _] = x.dims();
-    if n >= 2 * GPU_CHUNK_ROWS && crate::device::runs_on_gpu(&x.device()) {
+    if n >= 2 * GPU_CHUNK_ROWS && anerf_device::runs_on_gpu(&x.device()) {
         chunked_matmul(x, w, GPU_CHUNK_ROWS)
     } else {
         x.matmul(w)
@@ -208,8 +208,8 @@ impl SkipMlp {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::device::cpu_device;
     use crate::tensor::to_host;
+    use anerf_device::cpu_device;
     use burn::tensor::Distribution;
 
     /// The split conditioning equals a plain layer over the concatenated input with the same weights.

@@ -262,7 +262,7 @@ fn cells(dims: [usize; 3]) -> usize {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::device::cpu_device;
+    use anerf_device::cpu_device;
 
     fn config() -> OccupancyConfig {
         OccupancyConfig {

@@ -250,9 +250,9 @@ impl PoseRefinement {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::device::cpu_device;
     use crate::geometry::lbs::tests::TestRng;
     use crate::geometry::GlobalTransform;
+    use anerf_device::cpu_device;
 
     const FRAMES: usize = 4;
     const JOINTS: usize = 3;

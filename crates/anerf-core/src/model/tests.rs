@@ -8,7 +8,6 @@ use glam::Vec3;
 
 use super::animatable::{cull_samples, pose_samples, SampleRays};
 use super::*;
-use crate::device::cpu_device;
 use crate::geometry::skinning::{points_tensor, BoneMatrices};
 use crate::geometry::BlendWeightVolume;
 use crate::geometry::{
@@ -17,6 +16,7 @@ use crate::geometry::{
 use crate::render::{color_mse, composite, stratified_depths, HostRays, RayBatch};
 use crate::tensor::{from_rows, parameter_gradients, to_host};
 use crate::{FrameId, ViewId};
+use anerf_device::cpu_device;
 
 const JOINTS: [[f32; 3]; 4] = [
     [0.0, 0.0, 0.0],
@@ -668,7 +668,7 @@ fn occupancy_grid_matches_zeroing_samples_in_empty_cells() {
 #[cfg(any(feature = "wgpu", feature = "cuda"))]
 #[test]
 fn flex_and_gpu_backends_render_and_differentiate_the_same() {
-    for (choice, gpu) in crate::device::probe::gpu_devices_for_test(
+    for (choice, gpu) in anerf_device::testing::gpu_devices_for_test(
         "model::tests::flex_and_gpu_backends_render_and_differentiate_the_same",
     ) {
         eprintln!("on {choice}");
@@ -730,7 +730,7 @@ fn flex_and_gpu_backends_render_and_differentiate_the_same() {
                     g,
                     e,
                     // The MLPs' matmuls run on TF32 tensor cores on CUDA.
-                    anerf_testing::Tolerance::Relative(crate::device::probe::matmul_tolerance(
+                    anerf_testing::Tolerance::Relative(anerf_device::testing::matmul_tolerance(
                         choice, 1e-4,
                     )),
                 );

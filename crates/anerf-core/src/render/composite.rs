@@ -49,9 +49,9 @@ pub fn composite(density: Tensor<2>, rgb: Tensor<3>, depths: Tensor<2>) -> Compo
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::device::cpu_device;
     use crate::render::stratified_depths;
     use crate::tensor::to_host;
+    use anerf_device::cpu_device;
 
     /// A slab of constant density σ and colour c between depths a and b, sampled densely: the rendered
     /// colour must approach c·(1 − exp(−σ (b − a))) and the opacity 1 − exp(−σ (b − a)).

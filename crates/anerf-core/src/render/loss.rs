@@ -60,8 +60,8 @@ pub fn blend_consistency_parts(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::device::cpu_device;
     use crate::tensor::to_host;
+    use anerf_device::cpu_device;
 
     #[test]
     fn consistency_is_a_masked_mean_with_smooth_l1_branches() {

@@ -50,7 +50,7 @@ mod tests {
 
     #[test]
     fn evenly_spaced_without_jitter_and_inside_strata_with_it() {
-        let device = crate::device::cpu_device();
+        let device = anerf_device::cpu_device();
         let near = Tensor::<1>::from_floats([1.0, 2.0], &device);
         let far = Tensor::<1>::from_floats([3.0, 2.5], &device);
         let z = to_host(stratified_depths(near.clone(), far.clone(), 5, None));

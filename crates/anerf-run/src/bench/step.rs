@@ -292,7 +292,7 @@ mod tests {
     /// The tiny preset's timed step runs and lowers its own loss on the fixed batch.
     #[test]
     fn steps_run_and_train() {
-        let device = anerf_core::device::cpu_device().autodiff();
+        let device = anerf_device::cpu_device().autodiff();
         let preset = StepPreset::of(ModelPreset::Tiny).unwrap();
         let mut runner = StepRunner::new(&preset, 256, &device);
         let loss = |r: &StepRunner| {
@@ -312,7 +312,7 @@ mod tests {
     /// Interleaved rounds give every configuration its own timed steps.
     #[test]
     fn interleaved_rounds_time_every_configuration() {
-        let device = anerf_core::device::cpu_device().autodiff();
+        let device = anerf_device::cpu_device().autodiff();
         let tiny = StepPreset::of(ModelPreset::Tiny).unwrap();
         let wider = StepPreset {
             model: ModelConfig {

@@ -246,10 +246,10 @@ impl RayErrors {
 mod tests {
     use super::*;
     use crate::config::{self, Settings};
-    use anerf_core::device::cpu_device;
     use anerf_core::render::HostRays;
     use anerf_core::tensor::from_rows;
     use anerf_core::{FrameId, ViewId};
+    use anerf_device::cpu_device;
     use anerf_testing::{assert_close, Tolerance};
 
     /// The data loss against its definition, worked here in f64: each ray's error `e` is its mean squared

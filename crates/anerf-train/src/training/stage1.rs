@@ -393,10 +393,10 @@ mod tests {
     use super::*;
     use crate::config::{self, Settings};
     use crate::training::parallel::run_shards;
-    use anerf_core::device::cpu_device;
     use anerf_core::model::ModelPreset;
     use anerf_core::tensor::parameter_gradients;
     use anerf_data::synthetic::{write_subject, SyntheticSpec};
+    use anerf_device::cpu_device;
     use anerf_testing::{assert_close, Tolerance};
     use burn::optim::GradientsParams;
 

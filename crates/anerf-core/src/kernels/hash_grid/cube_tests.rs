@@ -1,6 +1,6 @@
 //! The CubeCL kernels on each compiled GPU runtime (wgpu, CUDA) against the CPU kernels (flex), the
 //! plain-tensor reference and finite differences. Each test first checks every GPU backend in a child
-//! process (`crate::device::probe`) and runs on those that work, printing why for the others.
+//! process (`anerf_device::probe`) and runs on those that work, printing why for the others.
 //!
 //! Tolerances: the kernels compute in f32 like the CPU kernels, with the same formulas but other rounding
 //! (the device may contract `a·b + c` into one fused operation and divides to within 2.5 ulp in WGSL) and,
@@ -18,10 +18,10 @@ use super::cube::{self, AtomicScheme};
 use super::reference::encode as encode_reference;
 use super::tests::{gradients, points, spec_with, wave};
 use super::*;
-use crate::device::cpu_device;
-use crate::device::probe::gpu_devices_for_test;
 use crate::tensor::{from_rows, to_host};
 use crate::DeviceChoice;
+use anerf_device::cpu_device;
+use anerf_device::testing::gpu_devices_for_test;
 use anerf_testing::{assert_close, Tolerance};
 
 /// The GPU devices (wgpu, CUDA) for the test at `path` (under `kernels::hash_grid::cube_tests::`) that

@@ -5,9 +5,9 @@ use burn::tensor::Distribution;
 
 use super::reference::encode as encode_reference;
 use super::*;
-use crate::device::cpu_device;
 use crate::model::hash_grid::HashGridConfig;
 use crate::tensor::{from_rows, to_host};
+use anerf_device::cpu_device;
 
 /// Four levels (2, 4, 8, 16 cells per axis) over `[−1, 1]³` with 256-row tables: the two coarse levels are
 /// stored densely, the two fine ones hashed.

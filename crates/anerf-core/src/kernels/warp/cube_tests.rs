@@ -1,6 +1,6 @@
 //! The warp's CubeCL kernels on each compiled GPU runtime (wgpu, CUDA) against the CPU kernels (flex), the
 //! plain-tensor reference on the same device and central differences of their own forward pass. Each test
-//! first checks every GPU backend in a child process (`crate::device::probe`) and runs on those that work,
+//! first checks every GPU backend in a child process (`anerf_device::probe`) and runs on those that work,
 //! printing why for the others.
 //!
 //! Tolerances: the kernels compute in f32 with the CPU kernels' formulas but other rounding (the device may
@@ -16,13 +16,13 @@ use super::tests::{
     softmax_inputs,
 };
 use super::*;
-use crate::device::cpu_device;
-use crate::device::probe::gpu_devices_for_test;
 use crate::geometry::lbs::tests::TestRng;
 use crate::geometry::volume::tests::wavy_lookup;
 use crate::geometry::BoneMatrices;
 use crate::tensor::{from_rows, to_host};
 use crate::DeviceChoice;
+use anerf_device::cpu_device;
+use anerf_device::testing::gpu_devices_for_test;
 use anerf_testing::{assert_close, Tolerance};
 
 /// The GPU devices (wgpu, CUDA) for the test `test` (under `kernels::warp::cube_tests::`) that pass the
@@ -54,7 +54,7 @@ fn cube_inverse_skinning_matches_flex_and_the_reference() {
             &format!("inverse skinning on {choice} vs the reference there"),
             &got,
             &reference,
-            crate::device::probe::matmul_tolerance(choice, 1e-4) as f32,
+            anerf_device::testing::matmul_tolerance(choice, 1e-4) as f32,
         );
         // Singular blends: the guard replaces the determinant on the GPU as on the CPU.
         let (bones, points, weights) = singular_blends();

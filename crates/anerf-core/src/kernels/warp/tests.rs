@@ -3,10 +3,10 @@ use glam::{Mat4, Vec3};
 
 use super::reference::prior_softmax as prior_softmax_reference;
 use super::*;
-use crate::device::cpu_device;
 use crate::geometry::lbs::tests::{random_skeleton_and_pose, TestRng};
 use crate::geometry::{BoneMatrices, BoneTransforms, CanonicalPose};
 use crate::tensor::{from_rows, to_host};
+use anerf_device::cpu_device;
 use anerf_testing::{assert_close, Tolerance};
 
 /// Values and input gradients of `Σ f(a, b) ⊙ c` for a fixed random `c` ([`objective_coefficients`]).

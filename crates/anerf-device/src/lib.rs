@@ -1,6 +1,8 @@
-//! Run-time backend choice. Which backends exist is decided at build time by cargo features
-//! (`flex` always, `ndarray` by default, `wgpu` and `cuda` opt-in); which one runs is chosen here, e.g. from
-//! `--device`.
+//! Devices for anerf: the run-time backend choice (which backends exist is decided at build time by cargo
+//! features: `flex` always, `ndarray` by default, `wgpu` and `cuda` opt-in; which one runs is chosen here,
+//! e.g. from `--device`), the check that a GPU backend runs before relying on it (`probe`, in a child
+//! process: the only process machinery of the project's libraries, kept out of `anerf-core`'s maths), the
+//! CPU compute threads and the host's memory. Test helpers are behind the `testing` feature.
 
 use std::fmt;
 use std::str::FromStr;
@@ -8,6 +10,8 @@ use std::str::FromStr;
 use burn::prelude::Device;
 
 pub mod probe;
+#[cfg(feature = "testing")]
+pub mod testing;
 pub mod threads;
 
 /// A compute backend the user can ask for by name.
