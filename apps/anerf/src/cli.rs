@@ -65,6 +65,8 @@ pub fn error_chain(error: &anyhow::Error) -> String {
 
 #[cfg(test)]
 mod tests {
+    use anerf_core::named::Named;
+
     use super::*;
 
     #[test]

@@ -13,6 +13,7 @@ pub mod ids;
 pub mod kernels;
 pub mod mesh;
 pub mod model;
+pub mod named;
 pub mod render;
 pub mod tensor;
 

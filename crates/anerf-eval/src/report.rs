@@ -10,6 +10,7 @@
 use std::io::Write;
 use std::path::{Path, PathBuf};
 
+use anerf_core::named::Named;
 use anerf_core::{FrameId, ViewId};
 use anerf_data::atomic::write_with;
 use image::Rgb32FImage;
@@ -42,8 +43,17 @@ impl EvalSplit {
         EvalSplit::NovelView,
         EvalSplit::NovelPose,
     ];
+}
 
-    pub fn name(self) -> &'static str {
+impl Named for EvalSplit {
+    const KIND: &'static str = "evaluation split";
+
+    fn all() -> &'static [Self] {
+        &Self::ALL
+    }
+
+    /// The split's name in commands and folders (`<run>/eval/<name>/`).
+    fn name(self) -> &'static str {
         match self {
             EvalSplit::TrainingView => "training-view",
             EvalSplit::NovelView => "novel-view",
@@ -52,24 +62,7 @@ impl EvalSplit {
     }
 }
 
-impl std::fmt::Display for EvalSplit {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.write_str(self.name())
-    }
-}
-
-impl std::str::FromStr for EvalSplit {
-    type Err = String;
-
-    fn from_str(s: &str) -> Result<Self, Self::Err> {
-        EvalSplit::ALL
-            .into_iter()
-            .find(|split| split.name() == s)
-            .ok_or_else(|| {
-                format!("unknown split {s:?}; expected training-view, novel-view or novel-pose")
-            })
-    }
-}
+anerf_core::by_name!(EvalSplit);
 
 /// The metrics of one evaluated image.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]

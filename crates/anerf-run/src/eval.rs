@@ -3,6 +3,7 @@
 
 use std::path::{Path, PathBuf};
 
+use anerf_core::named::Named;
 use anerf_core::FrameId;
 use anerf_eval::report::{EvalRecorder, EvalSplit, Summary};
 use anerf_eval::silhouette::Silhouettes;

@@ -8,6 +8,7 @@ use std::hash::{Hash, Hasher};
 use std::path::{Path, PathBuf};
 use std::time::SystemTime;
 
+use anerf_core::named::Named;
 use anerf_eval::report::{read_records_json, read_summary_json, EvalSplit, SavedImages};
 use anerf_eval::silhouette::SilhouetteMetrics;
 use anyhow::{Context, Result};

@@ -5,6 +5,7 @@
 use std::path::PathBuf;
 
 use anerf_core::model::{ModelConfig, ModelPreset};
+use anerf_core::named::Named;
 use anerf_core::DeviceChoice;
 use anerf_run::bench::{bench, median, BenchJob, PresetFigures};
 use anyhow::Result;

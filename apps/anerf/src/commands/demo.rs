@@ -3,6 +3,7 @@
 use std::path::PathBuf;
 
 use anerf_core::model::ModelPreset;
+use anerf_core::named::Named;
 use anerf_eval::report::markdown_table;
 use anerf_run::demo::{demo, DemoEvent};
 use anerf_train::stage::Stage;

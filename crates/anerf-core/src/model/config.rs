@@ -5,6 +5,7 @@ use serde::{Deserialize, Serialize};
 use super::hash_grid::HashGridConfig;
 use super::occupancy::OccupancyConfig;
 use super::pose_refinement::PoseRefinementConfig;
+use crate::named::Named;
 
 /// How the neural blend weight field combines its MLP output `F` with the body-model prior `w^s`.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
@@ -154,16 +155,6 @@ impl ModelPreset {
         ModelPreset::Fast,
     ];
 
-    /// The preset's name in configs and on the command line.
-    pub fn name(self) -> &'static str {
-        match self {
-            ModelPreset::Paper => "paper",
-            ModelPreset::Cpu => "cpu",
-            ModelPreset::Tiny => "tiny",
-            ModelPreset::Fast => "fast",
-        }
-    }
-
     /// The configuration.
     pub fn config(self) -> ModelConfig {
         let base = ModelConfig {
@@ -260,22 +251,25 @@ impl ModelPreset {
     }
 }
 
-impl std::str::FromStr for ModelPreset {
-    type Err = String;
+impl Named for ModelPreset {
+    const KIND: &'static str = "model preset";
 
-    fn from_str(s: &str) -> Result<Self, String> {
-        Self::ALL
-            .into_iter()
-            .find(|p| p.name() == s)
-            .ok_or_else(|| {
-                let names: Vec<_> = Self::ALL.iter().map(|p| p.name()).collect();
-                format!(
-                    "unknown model preset '{s}': expected one of {}",
-                    names.join(", ")
-                )
-            })
+    fn all() -> &'static [Self] {
+        &Self::ALL
+    }
+
+    /// The preset's name in configs and on the command line.
+    fn name(self) -> &'static str {
+        match self {
+            ModelPreset::Paper => "paper",
+            ModelPreset::Cpu => "cpu",
+            ModelPreset::Tiny => "tiny",
+            ModelPreset::Fast => "fast",
+        }
     }
 }
+
+crate::by_name!(ModelPreset);
 
 impl ModelConfig {
     /// An upper bound on the bytes one ray sample occupies during a step (`radiance: true`: the encodings,
@@ -372,6 +366,7 @@ mod tests {
         assert!("huge"
             .parse::<ModelPreset>()
             .unwrap_err()
+            .to_string()
             .contains("paper, cpu, tiny, fast"));
     }
 

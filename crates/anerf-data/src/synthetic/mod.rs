@@ -17,6 +17,7 @@ mod rng;
 use std::path::{Path, PathBuf};
 use std::time::Duration;
 
+use anerf_core::named::Named;
 use anerf_core::GeometryError;
 use glam::Vec3;
 use serde::{Deserialize, Serialize};
@@ -86,16 +87,6 @@ impl SynthPreset {
         SynthPreset::RealisticExact,
     ];
 
-    /// The preset's name on the command line.
-    pub fn name(self) -> &'static str {
-        match self {
-            SynthPreset::Tiny => "tiny",
-            SynthPreset::Demo => "demo",
-            SynthPreset::Realistic => "realistic",
-            SynthPreset::RealisticExact => "realistic-exact",
-        }
-    }
-
     pub fn spec(self) -> SyntheticSpec {
         match self {
             SynthPreset::Tiny => SyntheticSpec::tiny(),
@@ -106,28 +97,25 @@ impl SynthPreset {
     }
 }
 
-impl std::str::FromStr for SynthPreset {
-    type Err = String;
+impl Named for SynthPreset {
+    const KIND: &'static str = "synthetic preset";
 
-    fn from_str(s: &str) -> Result<Self, String> {
-        Self::ALL
-            .into_iter()
-            .find(|p| p.name() == s)
-            .ok_or_else(|| {
-                let names: Vec<_> = Self::ALL.iter().map(|p| p.name()).collect();
-                format!(
-                    "unknown synthetic preset '{s}': expected one of {}",
-                    names.join(", ")
-                )
-            })
+    fn all() -> &'static [Self] {
+        &Self::ALL
+    }
+
+    /// The preset's name on the command line.
+    fn name(self) -> &'static str {
+        match self {
+            SynthPreset::Tiny => "tiny",
+            SynthPreset::Demo => "demo",
+            SynthPreset::Realistic => "realistic",
+            SynthPreset::RealisticExact => "realistic-exact",
+        }
     }
 }
 
-impl std::fmt::Display for SynthPreset {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.write_str(self.name())
-    }
-}
+anerf_core::by_name!(SynthPreset);
 
 impl SyntheticSpec {
     /// 4 views, 10 frames (6 training + 4 novel-pose), 64 px, mild lens distortion, a coarser surface:

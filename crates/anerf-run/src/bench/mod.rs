@@ -8,6 +8,7 @@ mod step;
 use std::path::PathBuf;
 
 use anerf_core::model::ModelPreset;
+use anerf_core::named::Named;
 use anerf_core::DeviceChoice;
 use anyhow::Result;
 use serde::Serialize;

@@ -12,6 +12,7 @@ use anerf_core::model::{
     AnimatableNerf, CanonicalInputs, ConsistencyTerms, FrameCode, FrameInputs, ModelConfig,
     ModelPreset, ModelSizes,
 };
+use anerf_core::named::Named;
 use anerf_core::tensor::from_rows;
 use anerf_train::config::{self, Settings, StageConfig};
 use anerf_train::training::objective::{Objective, TermSums};

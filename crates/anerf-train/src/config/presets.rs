@@ -2,6 +2,7 @@
 //! the schedule it trains with where no file, flag or override gives one.
 
 use anerf_core::model::ModelPreset;
+use anerf_core::named::Named;
 use toml::{Table, Value};
 
 use super::sources::merge;

@@ -3,6 +3,7 @@
 
 use std::path::{Path, PathBuf};
 
+use anerf_core::named::Named;
 use toml::{Table, Value};
 
 use anerf_core::model::ModelPreset;

@@ -1,4 +1,5 @@
 use anerf_core::model::ModelPreset;
+use anerf_core::named::Named;
 
 use super::frames::MAX_RANGE_FRAMES;
 use super::presets::{mask_note, plateau_note};
