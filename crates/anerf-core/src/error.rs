@@ -1,6 +1,28 @@
-//! Errors of the geometry layer.
+//! Errors of the geometry layer, and the error of a configuration value out of its range.
+
+use std::fmt::Display;
 
 use thiserror::Error;
+
+/// A configuration value that is not allowed: its key (`model.width`), the value as given and what the key
+/// accepts.
+#[derive(Debug, Error, Clone, PartialEq, Eq)]
+#[error("{key} = {value}: expected {expected}")]
+pub struct InvalidValue {
+    pub key: String,
+    pub value: String,
+    pub expected: String,
+}
+
+impl InvalidValue {
+    pub fn new(key: impl Into<String>, value: impl Display, expected: impl Into<String>) -> Self {
+        Self {
+            key: key.into(),
+            value: value.to_string(),
+            expected: expected.into(),
+        }
+    }
+}
 
 /// Invalid skeletons, poses, weights or cameras, with the offending index and value.
 #[derive(Debug, Error, Clone, PartialEq)]

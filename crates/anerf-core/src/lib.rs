@@ -18,5 +18,5 @@ pub mod render;
 pub mod tensor;
 
 pub use anerf_device::DeviceChoice;
-pub use error::GeometryError;
+pub use error::{GeometryError, InvalidValue};
 pub use ids::{FrameId, ViewId};

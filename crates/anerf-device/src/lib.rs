@@ -66,7 +66,7 @@ impl DeviceChoice {
     }
 
     /// The Burn device (without autodiff), or an error naming the cargo feature to enable.
-    pub fn device(self) -> Result<Device, String> {
+    pub fn device(self) -> Result<Device, DeviceError> {
         match self {
             DeviceChoice::Flex => Ok(Device::flex()),
             #[cfg(feature = "ndarray")]
@@ -77,10 +77,7 @@ impl DeviceChoice {
             #[cfg(feature = "cuda")]
             DeviceChoice::Cuda => Ok(Device::cuda(0)),
             #[allow(unreachable_patterns)]
-            other => Err(format!(
-                "device '{other}' is not compiled into this binary; rebuild with `--features {}`",
-                other.feature()
-            )),
+            other => Err(DeviceError::NotCompiled { device: other }),
         }
     }
 }
@@ -95,39 +92,36 @@ pub struct DeviceSpec {
 
 impl DeviceSpec {
     /// The Burn device (without autodiff), or an error naming the feature to build with.
-    pub fn device(self) -> Result<Device, String> {
+    pub fn device(self) -> Result<Device, DeviceError> {
         match (self.choice, self.ordinal) {
             (_, 0) => self.choice.device(),
             #[cfg(feature = "cuda")]
             (DeviceChoice::Cuda, n) => Ok(Device::cuda(n)),
             #[allow(unreachable_patterns)]
             (DeviceChoice::Cuda, _) => DeviceChoice::Cuda.device(),
-            (other, n) => Err(format!(
-                "device '{other}:{n}': only cuda devices take an ordinal (use '{other}')"
-            )),
+            (other, n) => Err(DeviceError::OrdinalNotCuda {
+                device: other,
+                ordinal: n,
+            }),
         }
     }
 
     /// Checks the devices of one data-parallel run: at least one, all CUDA devices (Burn 0.22.1 all-reduces
     /// gradients between CUDA devices only, through NCCL), none twice.
-    pub fn check_data_parallel(devices: &[DeviceSpec]) -> Result<(), String> {
+    pub fn check_data_parallel(devices: &[DeviceSpec]) -> Result<(), DeviceError> {
         if devices.is_empty() {
-            return Err("--devices names no device".into());
+            return Err(DeviceError::NoDevices);
         }
-        if let Some(other) = devices.iter().find(|d| d.choice != DeviceChoice::Cuda) {
-            return Err(format!(
-                "--devices {other}: data-parallel training all-reduces the gradients, which Burn 0.22.1 \
-                 does only between CUDA devices (NCCL); name cuda:N devices, or train on one device with \
-                 --device"
-            ));
+        if let Some(&other) = devices.iter().find(|d| d.choice != DeviceChoice::Cuda) {
+            return Err(DeviceError::NotAllCuda { device: other });
         }
-        for (i, d) in devices.iter().enumerate() {
-            if let Some(j) = devices[..i].iter().position(|e| e == d) {
-                return Err(format!(
-                    "--devices names {d} twice (entries {} and {})",
-                    j + 1,
-                    i + 1
-                ));
+        for (i, &d) in devices.iter().enumerate() {
+            if let Some(j) = devices[..i].iter().position(|&e| e == d) {
+                return Err(DeviceError::Twice {
+                    device: d,
+                    first: j + 1,
+                    second: i + 1,
+                });
             }
         }
         Ok(())
@@ -141,13 +135,13 @@ impl fmt::Display for DeviceSpec {
 }
 
 impl FromStr for DeviceSpec {
-    type Err = String;
+    type Err = DeviceError;
 
     fn from_str(s: &str) -> Result<Self, Self::Err> {
         let (name, ordinal) = match s.split_once(':') {
             Some((name, n)) => {
-                let ordinal = n.parse().map_err(|_| {
-                    format!("device '{s}': expected a device ordinal after ':', e.g. cuda:1")
+                let ordinal = n.parse().map_err(|_| DeviceError::BadOrdinal {
+                    given: s.to_string(),
                 })?;
                 (name, ordinal)
             }
@@ -186,16 +180,48 @@ impl fmt::Display for DeviceChoice {
 }
 
 impl FromStr for DeviceChoice {
-    type Err = String;
+    type Err = DeviceError;
 
     fn from_str(s: &str) -> Result<Self, Self::Err> {
         Self::ALL
             .into_iter()
             .find(|c| c.feature() == s.to_ascii_lowercase())
-            .ok_or_else(|| {
-                format!("unknown device '{s}': expected one of flex, ndarray, wgpu, cuda")
+            .ok_or_else(|| DeviceError::Unknown {
+                given: s.to_string(),
             })
     }
+}
+
+/// Why a device cannot be named or opened.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub enum DeviceError {
+    #[error("unknown device '{given}': expected one of flex, ndarray, wgpu, cuda")]
+    Unknown { given: String },
+    #[error("device '{given}': expected a device ordinal after ':', e.g. cuda:1")]
+    BadOrdinal { given: String },
+    #[error(
+        "device '{device}' is not compiled into this binary; rebuild with `--features {}`",
+        device.feature()
+    )]
+    NotCompiled { device: DeviceChoice },
+    #[error("device '{device}:{ordinal}': only cuda devices take an ordinal (use '{device}')")]
+    OrdinalNotCuda {
+        device: DeviceChoice,
+        ordinal: usize,
+    },
+    #[error("--devices names no device")]
+    NoDevices,
+    #[error(
+        "--devices {device}: data-parallel training all-reduces the gradients, which Burn 0.22.1 does only \
+         between CUDA devices (NCCL); name cuda:N devices, or train on one device with --device"
+    )]
+    NotAllCuda { device: DeviceSpec },
+    #[error("--devices names {device} twice (entries {first} and {second})")]
+    Twice {
+        device: DeviceSpec,
+        first: usize,
+        second: usize,
+    },
 }
 
 #[cfg(test)]
@@ -207,7 +233,7 @@ mod tests {
         for c in DeviceChoice::ALL {
             assert_eq!(c.to_string().parse::<DeviceChoice>().unwrap(), c);
         }
-        let err = "cuda9".parse::<DeviceChoice>().unwrap_err();
+        let err = "cuda9".parse::<DeviceChoice>().unwrap_err().to_string();
         assert!(err.contains("cuda,") || err.ends_with("cuda"), "{err}");
         assert!(err.contains("cuda9") && err.contains("flex"), "{err}");
     }
@@ -217,14 +243,22 @@ mod tests {
         let cuda1: DeviceSpec = "cuda:1".parse().unwrap();
         assert_eq!((cuda1.choice, cuda1.ordinal), (DeviceChoice::Cuda, 1));
         assert_eq!("flex".parse::<DeviceSpec>().unwrap().to_string(), "flex:0");
-        let bad = "cuda:x".parse::<DeviceSpec>().unwrap_err();
+        let bad = "cuda:x".parse::<DeviceSpec>().unwrap_err().to_string();
         assert!(bad.contains("cuda:x") && bad.contains("ordinal"), "{bad}");
-        assert!("tpu:0".parse::<DeviceSpec>().unwrap_err().contains("tpu"));
+        assert!("tpu:0"
+            .parse::<DeviceSpec>()
+            .unwrap_err()
+            .to_string()
+            .contains("tpu"));
         let flex1 = DeviceSpec {
             choice: DeviceChoice::Flex,
             ordinal: 1,
         };
-        assert!(flex1.device().unwrap_err().contains("only cuda"));
+        assert!(flex1
+            .device()
+            .unwrap_err()
+            .to_string()
+            .contains("only cuda"));
         assert!(DeviceSpec {
             choice: DeviceChoice::Flex,
             ordinal: 0
@@ -241,14 +275,15 @@ mod tests {
         assert!(check("cuda:0,cuda:1").is_ok() && check("cuda:3").is_ok() && check("cuda").is_ok());
         assert!(DeviceSpec::check_data_parallel(&[])
             .unwrap_err()
+            .to_string()
             .contains("no device"));
-        let twice = check("cuda:0,cuda:1,cuda:0").unwrap_err();
+        let twice = check("cuda:0,cuda:1,cuda:0").unwrap_err().to_string();
         assert!(
             twice.contains("cuda:0 twice") && twice.contains("1 and 3"),
             "{twice}"
         );
         for other in ["flex", "cuda:0,flex", "wgpu:0,wgpu:1"] {
-            let err = check(other).unwrap_err();
+            let err = check(other).unwrap_err().to_string();
             assert!(
                 err.contains("only between CUDA devices") && err.contains("--device"),
                 "{err}"

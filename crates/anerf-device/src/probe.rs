@@ -41,11 +41,10 @@ const TIMEOUT: Duration = Duration::from_secs(180);
 /// Why a backend failed its check.
 #[derive(Debug, Error)]
 pub enum ProbeError {
-    /// `message` names the device and the cargo feature that compiles it.
-    #[error("{message}")]
+    #[error("{source}")]
     NotCompiled {
         device: DeviceChoice,
-        message: String,
+        source: crate::DeviceError,
     },
     #[error("device '{device}': could not start the probe process {program}: {source}")]
     Spawn {
@@ -196,6 +195,7 @@ pub fn exit_if_probe_child() {
     let outcome = name
         .to_string_lossy()
         .parse::<DeviceChoice>()
+        .map_err(|e| e.to_string())
         .and_then(|choice| {
             let (device, adapter) = open_for_probe(choice)?;
             smoke_test(&device)?;
@@ -234,9 +234,15 @@ fn open_for_probe(choice: DeviceChoice) -> Result<(Device, String), String> {
             .and_then(|context| context.name())
             .map_err(|e| format!("opening CUDA device 0: {e:?}"))?;
         println!("{FOUND}CUDA device 0: {name}");
-        return Ok((choice.device()?, format!("CUDA: {name}")));
+        return Ok((
+            choice.device().map_err(|e| e.to_string())?,
+            format!("CUDA: {name}"),
+        ));
     }
-    Ok((choice.device()?, UNNAMED.to_string()))
+    Ok((
+        choice.device().map_err(|e| e.to_string())?,
+        UNNAMED.to_string(),
+    ))
 }
 
 /// Every adapter wgpu finds on this machine, in the order Burn's automatic choice tries the graphics APIs
@@ -276,9 +282,9 @@ fn describe_adapter(info: &burn::tensor::wgpu::wgpu::AdapterInfo) -> String {
 /// including the signal that killed it. The CPU backends are only checked to be compiled: they need no child
 /// (`Ok(None)`).
 pub fn probe_in_child(choice: DeviceChoice, child: Command) -> Result<Option<String>, ProbeError> {
-    choice.device().map_err(|message| ProbeError::NotCompiled {
+    choice.device().map_err(|source| ProbeError::NotCompiled {
         device: choice,
-        message,
+        source,
     })?;
     if !choice.is_gpu() {
         return Ok(None);

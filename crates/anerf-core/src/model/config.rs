@@ -5,6 +5,7 @@ use serde::{Deserialize, Serialize};
 use super::hash_grid::HashGridConfig;
 use super::occupancy::OccupancyConfig;
 use super::pose_refinement::PoseRefinementConfig;
+use crate::error::InvalidValue;
 use crate::named::Named;
 
 /// How the neural blend weight field combines its MLP output `F` with the body-model prior `w^s`.
@@ -300,7 +301,7 @@ impl ModelConfig {
     }
 
     /// Checks every field; the error names the field and what is allowed.
-    pub fn validate(&self) -> Result<(), String> {
+    pub fn validate(&self) -> Result<(), InvalidValue> {
         let positive = [
             ("width", self.width),
             ("depth", self.depth),
@@ -310,24 +311,35 @@ impl ModelConfig {
         ];
         for (name, v) in positive {
             if v == 0 {
-                return Err(format!("model.{name} = 0: expected a positive integer"));
+                return Err(InvalidValue::new(
+                    format!("model.{name}"),
+                    0,
+                    "a positive integer",
+                ));
             }
         }
         if let Some(s) = self.skip {
             if s + 1 >= self.depth {
-                return Err(format!(
-                    "model.skip = {s}: expected a layer index below depth − 1 = {}",
-                    self.depth - 1
+                return Err(InvalidValue::new(
+                    "model.skip",
+                    s,
+                    format!("a layer index below depth − 1 = {}", self.depth - 1),
                 ));
             }
         }
-        if self.xyz_frequencies > 16 || self.dir_frequencies > 16 {
-            return Err("model.xyz_frequencies / dir_frequencies: expected at most 16".into());
+        for (key, n) in [
+            ("model.xyz_frequencies", self.xyz_frequencies),
+            ("model.dir_frequencies", self.dir_frequencies),
+        ] {
+            if n > 16 {
+                return Err(InvalidValue::new(key, n, "at most 16"));
+            }
         }
         if self.samples_per_ray < 2 {
-            return Err(format!(
-                "model.samples_per_ray = {}: expected at least 2",
-                self.samples_per_ray
+            return Err(InvalidValue::new(
+                "model.samples_per_ray",
+                self.samples_per_ray,
+                "at least 2",
             ));
         }
         if let Some(o) = &self.occupancy {
@@ -339,9 +351,10 @@ impl ModelConfig {
         }
         self.pose_refinement.validate()?;
         if !(self.cull_distance.is_finite() && self.cull_distance > 0.0) {
-            return Err(format!(
-                "model.cull_distance = {}: expected a positive distance in metres",
-                self.cull_distance
+            return Err(InvalidValue::new(
+                "model.cull_distance",
+                self.cull_distance,
+                "a positive distance in metres",
             ));
         }
         Ok(())
@@ -374,9 +387,16 @@ mod tests {
     fn invalid_values_name_the_field() {
         let mut c = ModelPreset::Tiny.config();
         c.skip = Some(1);
-        assert!(c.validate().unwrap_err().contains("model.skip"));
+        let err = c.validate().unwrap_err();
+        assert_eq!((err.key.as_str(), err.value.as_str()), ("model.skip", "1"));
         c = ModelPreset::Tiny.config();
         c.cull_distance = f32::NAN;
-        assert!(c.validate().unwrap_err().contains("model.cull_distance"));
+        let err = c.validate().unwrap_err();
+        assert_eq!(err.key, "model.cull_distance");
+        assert!(
+            err.to_string()
+                .starts_with("model.cull_distance = NaN: expected a positive"),
+            "{err}"
+        );
     }
 }

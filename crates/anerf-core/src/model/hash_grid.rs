@@ -10,6 +10,7 @@ use burn::module::{Initializer, Param};
 use burn::prelude::*;
 use serde::{Deserialize, Serialize};
 
+use crate::error::InvalidValue;
 use crate::kernels::hash_grid::GridSpec;
 
 /// Sizes of a hash grid (a part of [`crate::model::ModelConfig`]).
@@ -32,39 +33,38 @@ pub struct HashGridConfig {
 
 impl HashGridConfig {
     /// Checks the sizes; the error names the field.
-    pub fn validate(&self, name: &str) -> Result<(), String> {
+    pub fn validate(&self, name: &str) -> Result<(), InvalidValue> {
+        let bad = |key: &str, value: &dyn std::fmt::Display, expected: &str| {
+            Err(InvalidValue::new(format!("{name}.{key}"), value, expected))
+        };
         if self.levels == 0 || self.levels > 32 {
-            return Err(format!("{name}.levels = {}: expected 1 to 32", self.levels));
+            return bad("levels", &self.levels, "1 to 32");
         }
         if !(4..=24).contains(&self.log2_table_size) {
-            return Err(format!(
-                "{name}.log2_table_size = {}: expected 4 to 24",
-                self.log2_table_size
-            ));
+            return bad("log2_table_size", &self.log2_table_size, "4 to 24");
         }
         if self.features_per_level == 0 || self.features_per_level > 8 {
-            return Err(format!(
-                "{name}.features_per_level = {}: expected 1 to 8",
-                self.features_per_level
-            ));
+            return bad("features_per_level", &self.features_per_level, "1 to 8");
         }
         if self.base_resolution < 1 || self.finest_resolution < self.base_resolution {
-            return Err(format!(
-                "{name}.base_resolution = {} / finest_resolution = {}: expected 1 ≤ base ≤ finest",
-                self.base_resolution, self.finest_resolution
-            ));
+            return bad(
+                "base_resolution",
+                &format!(
+                    "{} (finest_resolution = {})",
+                    self.base_resolution, self.finest_resolution
+                ),
+                "1 ≤ base ≤ finest",
+            );
         }
         if self.finest_resolution > 1 << 20 {
-            return Err(format!(
-                "{name}.finest_resolution = {}: expected at most 2^20",
-                self.finest_resolution
-            ));
+            return bad("finest_resolution", &self.finest_resolution, "at most 2^20");
         }
         if !(self.half_extent.is_finite() && self.half_extent > 0.0) {
-            return Err(format!(
-                "{name}.half_extent = {}: expected a positive length in metres",
-                self.half_extent
-            ));
+            return bad(
+                "half_extent",
+                &self.half_extent,
+                "a positive length in metres",
+            );
         }
         Ok(())
     }

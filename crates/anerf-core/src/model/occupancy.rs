@@ -12,6 +12,7 @@ use burn::prelude::*;
 use glam::Vec3;
 use serde::{Deserialize, Serialize};
 
+use crate::error::InvalidValue;
 use crate::geometry::Aabb;
 use crate::tensor::{from_rows, to_host};
 
@@ -31,23 +32,27 @@ pub struct OccupancyConfig {
 
 impl OccupancyConfig {
     /// Checks the values; the error names the field.
-    pub fn validate(&self) -> Result<(), String> {
+    pub fn validate(&self) -> Result<(), InvalidValue> {
         if !(2..=512).contains(&self.resolution) {
-            return Err(format!(
-                "model.occupancy.resolution = {}: expected 2 to 512",
-                self.resolution
+            return Err(InvalidValue::new(
+                "model.occupancy.resolution",
+                self.resolution,
+                "2 to 512",
             ));
         }
         if !(self.density_threshold.is_finite() && self.density_threshold >= 0.0) {
-            return Err(format!(
-                "model.occupancy.density_threshold = {}: expected a density ≥ 0 (1/m)",
-                self.density_threshold
+            return Err(InvalidValue::new(
+                "model.occupancy.density_threshold",
+                self.density_threshold,
+                "a density ≥ 0 (1/m)",
             ));
         }
         if self.update_every == 0 {
-            return Err(
-                "model.occupancy.update_every = 0: expected a positive number of steps".into(),
-            );
+            return Err(InvalidValue::new(
+                "model.occupancy.update_every",
+                0,
+                "a positive number of steps",
+            ));
         }
         Ok(())
     }
@@ -353,6 +358,9 @@ mod tests {
             update_every: 0,
             ..c
         };
-        assert!(bad.validate().unwrap_err().contains("update_every"));
+        assert_eq!(
+            bad.validate().unwrap_err().key,
+            "model.occupancy.update_every"
+        );
     }
 }

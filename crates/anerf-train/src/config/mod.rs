@@ -5,6 +5,7 @@ use std::path::{Path, PathBuf};
 
 use anerf_core::model::ModelConfig;
 use anerf_core::DeviceChoice;
+use anerf_core::InvalidValue;
 use anerf_data::prepare::ImageScale;
 pub use anerf_data::MaskEdges;
 use serde::{Deserialize, Serialize};
@@ -41,8 +42,22 @@ pub enum ConfigError {
     BaseCycle { path: PathBuf, again: PathBuf },
     #[error("override `{0}` is not of the form section.key=value")]
     BadOverride(String),
+    /// A value outside what its key accepts.
     #[error("invalid config: {0}")]
-    Invalid(String),
+    Invalid(#[from] InvalidValue),
+    /// A value of the wrong type or shape for its key (serde's message), or an unknown key.
+    #[error("invalid config: {key}: {message}")]
+    Malformed { key: String, message: String },
+    /// A value where a section is expected (`model = 5`; `--set dataset=1 --set dataset.root=x`); `what`
+    /// says what was being set.
+    #[error("invalid config: `{key}` is not a section ({what})")]
+    NotASection { key: String, what: String },
+    #[error("invalid config: dataset.{key}: cannot resolve {path} to an absolute path: {source}")]
+    Unresolvable {
+        key: &'static str,
+        path: PathBuf,
+        source: std::io::Error,
+    },
 }
 
 /// Dataset layouts anerf reads.
@@ -182,12 +197,11 @@ impl DatasetConfig {
     /// Resolves `root`, `cache` and `body_model` against the working directory, as written into a run's
     /// config, so that the run can be evaluated from any folder.
     pub fn make_paths_absolute(&mut self) -> Result<(), ConfigError> {
-        let absolute = |key: &str, p: &Path| {
-            std::path::absolute(p).map_err(|e| {
-                ConfigError::Invalid(format!(
-                    "dataset.{key}: cannot resolve {}: {e}",
-                    p.display()
-                ))
+        let absolute = |key: &'static str, p: &Path| {
+            std::path::absolute(p).map_err(|source| ConfigError::Unresolvable {
+                key,
+                path: p.to_path_buf(),
+                source,
             })
         };
         self.root = absolute("root", &self.root)?;

@@ -3,6 +3,7 @@
 
 use anerf_core::model::ModelPreset;
 use anerf_core::named::Named;
+use anerf_core::InvalidValue;
 use toml::{Table, Value};
 
 use super::sources::merge;
@@ -137,21 +138,25 @@ pub(super) fn expand_model_preset(table: &mut Table) -> Result<Option<ModelPrese
     let mut model = match table.remove("model") {
         Some(Value::Table(t)) => t,
         None => Table::new(),
-        Some(_) => return Err(ConfigError::Invalid("`model` must be a section".into())),
+        Some(_) => {
+            return Err(ConfigError::NotASection {
+                key: "model".into(),
+                what: "the model's settings".into(),
+            })
+        }
     };
     let preset = match model.remove("preset") {
         // A resolved config (as saved in a run folder) lists every field itself.
         Some(Value::String(name)) if name == RESOLVED => None,
         None => None,
-        Some(Value::String(name)) => Some(
-            name.parse::<ModelPreset>()
-                .map_err(|e| ConfigError::Invalid(format!("model.preset: {e}")))?,
-        ),
-        Some(other) => {
-            return Err(ConfigError::Invalid(format!(
-                "model.preset = {other}: expected a preset name"
-            )))
-        }
+        Some(Value::String(name)) => Some(name.parse::<ModelPreset>().map_err(|e| {
+            InvalidValue::new(
+                "model.preset",
+                &name,
+                format!("one of {}", e.names.join(", ")),
+            )
+        })?),
+        Some(other) => return Err(InvalidValue::new("model.preset", other, "a preset name").into()),
     };
     let Some(preset) = preset else {
         table.insert("model".into(), Value::Table(model));

@@ -36,8 +36,13 @@ pub fn from_table(mut table: Table) -> Result<ExperimentConfig, ConfigError> {
         default_schedule(&mut table, preset_schedule(preset));
     }
     default_learning_rates(&mut table);
-    let config: ExperimentConfig = serde_path_to_error::deserialize(Value::Table(table))
-        .map_err(|e| ConfigError::Invalid(format!("{}: {}", e.path(), e.inner().message())))?;
+    let config: ExperimentConfig =
+        serde_path_to_error::deserialize(Value::Table(table)).map_err(|e| {
+            ConfigError::Malformed {
+                key: e.path().to_string(),
+                message: e.inner().message().to_string(),
+            }
+        })?;
     validate(&config)?;
     Ok(config)
 }
@@ -101,10 +106,10 @@ fn read_chain(path: &Path, seen: &mut Vec<PathBuf>) -> Result<Table, ConfigError
     let base = match table.remove("base") {
         Some(Value::String(b)) => read_chain(&dir.join(b), seen)?,
         Some(other) => {
-            return Err(ConfigError::Invalid(format!(
-                "{}: `base` must be a file name, got {other}",
-                path.display()
-            )))
+            return Err(ConfigError::Malformed {
+                key: format!("{}: base", path.display()),
+                message: format!("{other}: expected the file name of the base config"),
+            })
         }
         None => defaults(),
     };
@@ -139,8 +144,10 @@ pub fn apply_override(table: &mut Table, text: &str) -> Result<(), ConfigError> 
         .ok()
         .and_then(|mut t| t.remove("v"))
         .unwrap_or_else(|| Value::String(value.to_string()));
-    set_value(table, &path, parsed)
-        .map_err(|p| ConfigError::Invalid(format!("override `{text}`: `{p}` is not a section")))
+    set_value(table, &path, parsed).map_err(|key| ConfigError::NotASection {
+        key,
+        what: format!("override `{text}`"),
+    })
 }
 
 /// Sets the value at a key path, making the sections on the way; the error is the first key on the way
@@ -187,11 +194,9 @@ impl Settings {
     pub fn apply(&self, table: &mut Table) -> Result<(), ConfigError> {
         let path_value = |p: &Path| Value::String(p.display().to_string());
         let mut set = |path: &[&str], value: Value| {
-            set_value(table, path, value).map_err(|p| {
-                ConfigError::Invalid(format!(
-                    "`{p}` is not a section (setting {})",
-                    path.join(".")
-                ))
+            set_value(table, path, value).map_err(|key| ConfigError::NotASection {
+                key,
+                what: format!("setting {}", path.join(".")),
             })
         };
         if let Some(p) = &self.root {

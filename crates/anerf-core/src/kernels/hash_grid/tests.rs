@@ -53,10 +53,10 @@ fn resolutions_grow_geometrically_and_coarse_levels_are_dense() {
         finest_resolution: 1,
         ..config()
     };
-    assert!(bad
-        .validate("model.grid")
-        .unwrap_err()
-        .contains("model.grid.base_resolution"));
+    assert_eq!(
+        bad.validate("model.grid").unwrap_err().key,
+        "model.grid.base_resolution"
+    );
 }
 
 /// The test grid with `features` per level: 2 runs the kernels' constant-width instance, 3 the instance that
