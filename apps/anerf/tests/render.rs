@@ -487,13 +487,13 @@ fn consistency(model: &AnimatableNerf, targets: &[PoseTarget], exp: &Experiment)
                 .into_iter()
                 .map(|p| t.inputs.global.world_to_pose(p))
                 .collect();
-            let loss = model.stage2_loss(
+            let terms = model.stage2_terms(
                 &t.inputs,
                 canonical,
                 points_tensor(&pose, &device),
                 can.clone(),
             );
-            to_host(loss.total)[0]
+            to_host(terms.consistency())[0]
         })
         .sum()
 }

@@ -4,16 +4,14 @@
 use burn::prelude::*;
 use burn::tensor::IndexingUpdateOp;
 use glam::Vec3;
-use rayon::prelude::*;
 
 use super::blend::BlendWeightField;
+use super::culling::{Culled, Culling};
 use super::nerf::CanonicalNerf;
 use super::occupancy::OccupancyGrid;
 use super::pose_refinement::PoseRefinement;
 use super::{ConsistencyLoss, ModelConfig, ViewDirection};
-use crate::geometry::skinning::{
-    points_tensor, world_to_pose, world_to_pose_directions, BoneMatrices,
-};
+use crate::geometry::skinning::{points_tensor, world_to_pose_directions, BoneMatrices};
 use crate::geometry::VolumeTensor;
 use crate::geometry::{Aabb, GlobalTransform, PoseBasis};
 use crate::render::{
@@ -466,7 +464,7 @@ impl AnimatableNerf {
     /// and world-space unit view directions `[M, 3]` are warped and (with an occupancy grid) those in empty
     /// canonical cells dropped; returns the rows of the given samples that reached the canonical NeRF (all of
     /// them without a grid; never none) and their shading.
-    fn shade_points(
+    pub(super) fn shade_points(
         &self,
         points: Tensor<2>,
         prior: Tensor<2>,
@@ -496,40 +494,6 @@ impl AnimatableNerf {
         };
         let dirs = self.colour_directions(select(points), select(dirs), &kept, frame);
         (rows, self.radiance(kept, dirs, frame, canonical))
-    }
-
-    /// [`cull_samples`] on the device, for the GPU backends: the samples along `rays` at `depths` (`[R, S]`,
-    /// metres) placed in pose space, their distance to the body looked up in the frame volume, and those
-    /// closer than `cull_distance` (or else the closest) selected with their view directions and prior
-    /// weights. Only the survivors' indices cross to the host and back (their count fixes the batch's shape);
-    /// the rays, depths and survivors stay on the device.
-    pub(super) fn cull_on_device(
-        &self,
-        rays: &RayBatch,
-        depths: Tensor<2>,
-        frame: &FrameInputs,
-    ) -> DeviceSurvivors {
-        let [r, s] = depths.dims();
-        let pose = pose_samples(rays, depths, &frame.global);
-        let distance = frame.volume.sample_distance(pose.clone()).reshape([r * s]);
-        let near = distance
-            .clone()
-            .lower_elem(self.config.cull_distance)
-            .argwhere();
-        let index = match near.dims() {
-            [0, _] => distance.argmin(0),
-            [m, _] => near.reshape([m]),
-        };
-        let points = pose.select(0, index.clone());
-        DeviceSurvivors {
-            directions: rays
-                .directions
-                .clone()
-                .select(0, index.clone().div_scalar(s as i64)),
-            prior: frame.volume.sample(points.clone()).weights,
-            points,
-            index,
-        }
     }
 
     /// Renders `rays` of one frame. `jitter` (`[R, S]` uniform in `[0, 1)`) perturbs the depths when training;
@@ -595,215 +559,6 @@ impl AnimatableNerf {
             total_samples: n,
         }
     }
-}
-
-/// The pose-space positions `[R·S, 3]` (metres, ray-major) of the samples along `rays` at `depths` (`[R, S]`,
-/// metres along each ray): `x_pose = R_hᵀ (o + z·d − T_h)`.
-pub(super) fn pose_samples(
-    rays: &RayBatch,
-    depths: Tensor<2>,
-    global: &GlobalTransform,
-) -> Tensor<2> {
-    let [r, s] = depths.dims();
-    let world = rays.origins.clone().unsqueeze_dim::<3>(1)
-        + rays.directions.clone().unsqueeze_dim::<3>(1) * depths.unsqueeze_dim::<3>(2);
-    world_to_pose(world.reshape([r * s, 3]), global)
-}
-
-/// Where a render culls its samples (drops those far from the body before any network sees them). The
-/// one decision, from the device: the GPU backends cull on the device, where reading the batch back and
-/// uploading the survivors would cost more than the lookups; the CPU backends cull on the host and upload
-/// only the survivors' positions and directions.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum Culling {
-    Host,
-    Device,
-}
-
-/// The shaded survivors of a render's samples.
-struct Culled {
-    /// `[occupied]` flat indices `ray · S + sample` of the shaded samples.
-    index: Tensor<1, Int>,
-    /// Samples that survived culling, and those of them that were shaded (in occupied canonical cells).
-    surviving: usize,
-    occupied: usize,
-    shaded: ShadedSamples,
-}
-
-impl Culling {
-    /// The culling `device` runs.
-    pub fn for_device(device: &Device) -> Self {
-        if anerf_device::runs_on_gpu(device) {
-            Culling::Device
-        } else {
-            Culling::Host
-        }
-    }
-
-    /// Culls the samples of `rays` at `depths` (`[R, S]`) and shades the survivors with `model`.
-    fn shade(
-        self,
-        model: &AnimatableNerf,
-        rays: &RayBatch,
-        depths: Tensor<2>,
-        frame: &FrameInputs,
-        canonical: &CanonicalInputs,
-    ) -> Culled {
-        let device = rays.origins.device();
-        match self {
-            Culling::Device => {
-                let survivors = model.cull_on_device(rays, depths, frame);
-                let (rows, shaded) = model.shade_points(
-                    survivors.points,
-                    survivors.prior,
-                    survivors.directions,
-                    frame,
-                    canonical,
-                );
-                let (surviving, occupied) = (survivors.index.dims()[0], rows.len());
-                let index = if occupied == surviving {
-                    survivors.index
-                } else {
-                    let rows =
-                        Tensor::<1, Int>::from_data(TensorData::new(rows, [occupied]), &device);
-                    survivors.index.select(0, rows)
-                };
-                Culled {
-                    index,
-                    surviving,
-                    occupied,
-                    shaded,
-                }
-            }
-            Culling::Host => {
-                let survivors = cull_samples(
-                    &SampleRays {
-                        origins: &to_host(rays.origins.clone()),
-                        directions: &to_host(rays.directions.clone()),
-                        depths: &to_host(depths.clone()),
-                        samples: depths.dims()[1],
-                    },
-                    &frame.global,
-                    &frame.volume,
-                    model.config.cull_distance,
-                );
-                let (rows, shaded) = model.shade_survivors(
-                    &survivors.points,
-                    survivors.directions,
-                    frame,
-                    canonical,
-                );
-                let occupied = rows.len();
-                let global: Vec<i64> = rows.iter().map(|&j| survivors.index[j as usize]).collect();
-                Culled {
-                    index: Tensor::<1, Int>::from_data(
-                        TensorData::new(global, [occupied]),
-                        &device,
-                    ),
-                    surviving: survivors.index.len(),
-                    occupied,
-                    shaded,
-                }
-            }
-        }
-    }
-}
-
-/// The samples that survive culling, on the device ([`AnimatableNerf::cull_on_device`]).
-pub(super) struct DeviceSurvivors {
-    /// `[M]` flat indices `ray · S + sample`.
-    pub index: Tensor<1, Int>,
-    /// `[M, 3]` pose-space positions (metres).
-    pub points: Tensor<2>,
-    /// `[M, 3]` world-space unit view directions.
-    pub directions: Tensor<2>,
-    /// `[M, K]` the body model's blend weights `w^s` there.
-    pub prior: Tensor<2>,
-}
-
-/// The samples along a batch of rays, on the host.
-pub struct SampleRays<'a> {
-    /// `[R·3]` world-space origins (metres) and unit directions.
-    pub origins: &'a [f32],
-    pub directions: &'a [f32],
-    /// `[R·S]` depths along each ray (metres).
-    pub depths: &'a [f32],
-    /// `S`.
-    pub samples: usize,
-}
-
-/// The samples that survive culling: their flat indices `ray · S + sample`, pose-space positions `[M]`
-/// (metres) and world-space view directions `[M·3]`.
-#[derive(Debug, Clone, PartialEq)]
-pub struct Survivors {
-    pub index: Vec<i64>,
-    pub points: Vec<Vec3>,
-    pub directions: Vec<f32>,
-}
-
-/// Places the samples of `rays` in pose space (`x_pose = R_hᵀ (o + z·d − T_h)`) and keeps those closer than
-/// `threshold` to the body by the host copy of the frame volume's distance channel
-/// ([`VolumeTensor::is_near`]); when none is, the closest sample (as [`surviving_indices`]).
-pub fn cull_samples(
-    rays: &SampleRays,
-    global: &GlobalTransform,
-    volume: &VolumeTensor,
-    threshold: f32,
-) -> Survivors {
-    let rotation_t = global.rotation().transpose();
-    let s = rays.samples;
-    let ray_vec = |v: &[f32], r: usize| Vec3::from_slice(&v[3 * r..3 * r + 3]);
-    let pose = |i: usize| {
-        let r = i / s;
-        rotation_t
-            * (ray_vec(rays.origins, r) + ray_vec(rays.directions, r) * rays.depths[i] - global.th)
-    };
-    let n = rays.depths.len();
-    let mut near: Vec<(i64, Vec3)> = (0..n)
-        .into_par_iter()
-        .filter_map(|i| {
-            let p = pose(i);
-            volume.is_near(p, threshold).then_some((i as i64, p))
-        })
-        .collect();
-    if near.is_empty() && n > 0 {
-        let distance: Vec<f32> = (0..n)
-            .into_par_iter()
-            .map(|i| volume.distance_at(pose(i)))
-            .collect();
-        near = surviving_indices(&distance, threshold)
-            .into_iter()
-            .map(|i| (i, pose(i as usize)))
-            .collect();
-    }
-    let (index, points): (Vec<i64>, Vec<Vec3>) = near.into_iter().unzip();
-    let directions = index
-        .iter()
-        .flat_map(|&i| ray_vec(rays.directions, i as usize / s).to_array())
-        .collect();
-    Survivors {
-        index,
-        points,
-        directions,
-    }
-}
-
-/// Indices of samples closer than `threshold` to the body; the closest sample is always included.
-pub fn surviving_indices(distance: &[f32], threshold: f32) -> Vec<i64> {
-    let mut keep: Vec<i64> = (0..distance.len())
-        .filter(|&i| distance[i] < threshold)
-        .map(|i| i as i64)
-        .collect();
-    if keep.is_empty() {
-        if let Some((closest, _)) = distance
-            .iter()
-            .enumerate()
-            .min_by(|a, b| a.1.total_cmp(b.1))
-        {
-            keep.push(closest as i64);
-        }
-    }
-    keep
 }
 
 /// `mean(F²)` of a residual `[M, K]`; zero for none.

@@ -5,7 +5,8 @@
 
 use glam::Vec3;
 
-use super::animatable::{cull_samples, AnimatableNerf, CanonicalInputs, FrameInputs, SampleRays};
+use super::animatable::{AnimatableNerf, CanonicalInputs, FrameInputs};
+use super::culling::{cull_samples, SampleRays};
 use crate::render::{sample_fractions, HostRays};
 use crate::tensor::to_host;
 

@@ -3,6 +3,7 @@
 pub mod animatable;
 pub mod blend;
 pub mod config;
+pub mod culling;
 pub mod encoding;
 pub mod hash_grid;
 pub mod march;

@@ -3,15 +3,15 @@
 
 use burn::prelude::*;
 
-use super::animatable::{consistency_mask, residual_penalty, surviving_indices};
+use super::animatable::{consistency_mask, residual_penalty};
+use super::culling::surviving_indices;
 use super::{AnimatableNerf, CanonicalInputs, FrameInputs};
 use crate::tensor::to_host;
 
-/// The two consistency terms of one stage-2 step.
+/// The terms of one stage-2 step, which the training crate's objective weighs: two consistency directions
+/// and the new field's residual.
 #[derive(Debug, Clone)]
-pub struct Stage2Loss {
-    /// `observation + canonical`.
-    pub total: Tensor<1>,
+pub struct Stage2Terms {
     /// Points sampled in the frame's box, warped to canonical space with `w_new`: `w_new(x)` vs `w^can(x')`.
     pub observation: Tensor<1>,
     /// Points sampled in the canonical box, skinned forward with `w^can`: `w_new(x)` vs `w^can(x_can)`.
@@ -21,20 +21,27 @@ pub struct Stage2Loss {
     pub residual: Tensor<1>,
 }
 
+impl Stage2Terms {
+    /// Both consistency directions, `observation + canonical` (the authors' code weighs them alike).
+    pub fn consistency(&self) -> Tensor<1> {
+        self.observation.clone() + self.canonical.clone()
+    }
+}
+
 impl AnimatableNerf {
-    /// The stage-2 loss for one novel-pose frame (`frame.code` must be [`super::FrameCode::Novel`]).
+    /// The stage-2 terms of one novel-pose frame (`frame.code` must be [`super::FrameCode::Novel`]).
     ///
     /// `pose_points` (`[P, 3]`, pose space) are uniform in the frame's body box; `canonical_points` (`[Q, 3]`)
     /// uniform in the canonical box. Points of the first set farther than `cull_distance` from the body are
     /// dropped before any MLP (the closest is always kept); in both sets only points whose frozen raw density
     /// is positive inside the canonical box (plus the densest) count.
-    pub fn stage2_loss(
+    pub fn stage2_terms(
         &self,
         frame: &FrameInputs,
         canonical: &CanonicalInputs,
         pose_points: Tensor<2>,
         canonical_points: Tensor<2>,
-    ) -> Stage2Loss {
+    ) -> Stage2Terms {
         let kind = self.config().consistency;
         let device = pose_points.device();
 
@@ -63,8 +70,7 @@ impl AnimatableNerf {
             + residual_penalty(residual_canonical, &device))
             * 0.5;
 
-        Stage2Loss {
-            total: observation.clone() + canonical_term.clone(),
+        Stage2Terms {
             observation,
             canonical: canonical_term,
             residual,

@@ -6,7 +6,7 @@ use burn::optim::GradientsParams;
 use burn::prelude::*;
 use glam::Vec3;
 
-use super::animatable::{cull_samples, pose_samples, SampleRays};
+use super::culling::{cull_samples, pose_samples, SampleRays};
 use super::*;
 use crate::geometry::skinning::{points_tensor, BoneMatrices};
 use crate::geometry::BlendWeightVolume;
@@ -253,9 +253,11 @@ fn stage2_trains_only_the_novel_field() {
         &grid_points(s.canonical.bounds.min, s.canonical.bounds.max),
         &device,
     );
-    let loss = model.stage2_loss(&s.frame, &s.canonical, pose_points, can_points);
-    assert!(to_host(loss.total.clone())[0] > 0.0);
-    let grads = GradientsParams::from_grads(loss.total.backward(), &model);
+    let loss = model
+        .stage2_terms(&s.frame, &s.canonical, pose_points, can_points)
+        .consistency();
+    assert!(to_host(loss.clone())[0] > 0.0);
+    let grads = GradientsParams::from_grads(loss.backward(), &model);
     let (nerf, nerf_total) = params_with_gradient(&model.nerf, &grads);
     let (blend, _) = params_with_gradient(&model.blend, &grads);
     assert_eq!(

@@ -3,7 +3,9 @@
 //! the shard's own on one device, exchanged between the shards of a data-parallel step), and the terms'
 //! weights ([`Objective`]). Every term is a mean over the batch's rays or samples, so the shards' losses
 //! average to the batch's. `anerf bench` times its step with the same objective ([`TermSums::of_points`]).
+//! Stage 2's terms come from the model too ([`Stage2Terms`]) and are weighed here ([`Stage2Objective`]).
 
+use anerf_core::model::stage2::Stage2Terms;
 use anerf_core::model::{ConsistencyLoss, ConsistencyTerms, RenderOutput};
 use anerf_core::render::RayBatch;
 use anerf_core::tensor::to_host;
@@ -193,6 +195,23 @@ impl Objective<'_> {
             None => data,
         };
         WeighedTerms { loss, mse, blend }
+    }
+}
+
+/// Stage 2's loss weights: both consistency directions at weight 1 (the authors'), the new field's residual
+/// penalty at `residual_weight`.
+pub struct Stage2Objective<'a> {
+    pub cfg: &'a StageConfig,
+}
+
+impl Stage2Objective<'_> {
+    pub fn weigh(&self, terms: Stage2Terms) -> Tensor<1> {
+        let consistency = terms.consistency();
+        if self.cfg.residual_weight > 0.0 {
+            consistency + terms.residual * self.cfg.residual_weight
+        } else {
+            consistency
+        }
     }
 }
 

@@ -16,6 +16,7 @@ use rand_chacha::ChaCha8Rng;
 
 use super::driver::{drive, Record, RenderFigures, Single, Step};
 use super::loop_state::LoopState;
+use super::objective::Stage2Objective;
 use super::seeds::{stream_seed, Stream};
 use super::window::{StepValues, WindowMeans};
 use super::{check_sizes, optimizer, resume_point, StageOutcome, TrainOptions};
@@ -157,17 +158,13 @@ fn stage2_loss(
         .map(|p| global.world_to_pose(p))
         .collect();
     let canonical_points = uniform_in_box(rng, canonical.bounds, cfg.batch);
-    let terms = model.stage2_loss(
+    let terms = model.stage2_terms(
         &target.inputs,
         canonical,
         points_tensor(&pose, &device),
         points_tensor(&canonical_points, &device),
     );
-    let loss = if cfg.residual_weight > 0.0 {
-        terms.total + terms.residual * cfg.residual_weight
-    } else {
-        terms.total
-    };
+    let loss = Stage2Objective { cfg }.weigh(terms);
     let value = to_host(loss.clone())[0];
     let logged = StepValues {
         loss: value,
