@@ -6,7 +6,7 @@ use burn::tensor::IndexingUpdateOp;
 use glam::Vec3;
 
 use super::blend::BlendWeightField;
-use super::culling::{Culled, Culling};
+use super::culling::{cull_on_device, cull_samples, Culling, SampleRays};
 use super::nerf::CanonicalNerf;
 use super::occupancy::OccupancyGrid;
 use super::pose_refinement::PoseRefinement;
@@ -496,13 +496,83 @@ impl AnimatableNerf {
         (rows, self.radiance(kept, dirs, frame, canonical))
     }
 
+    /// Culls the samples of `rays` at `depths` (`[R, S]`) where `culling` says and shades the survivors.
+    fn shade_culled(
+        &self,
+        culling: Culling,
+        rays: &RayBatch,
+        depths: Tensor<2>,
+        frame: &FrameInputs,
+        canonical: &CanonicalInputs,
+    ) -> Culled {
+        let device = rays.origins.device();
+        match culling {
+            Culling::Device => {
+                let survivors = cull_on_device(
+                    rays,
+                    depths,
+                    &frame.global,
+                    &frame.volume,
+                    self.config.cull_distance,
+                );
+                let (rows, shaded) = self.shade_points(
+                    survivors.points,
+                    survivors.prior,
+                    survivors.directions,
+                    frame,
+                    canonical,
+                );
+                let (surviving, occupied) = (survivors.index.dims()[0], rows.len());
+                let index = if occupied == surviving {
+                    survivors.index
+                } else {
+                    let rows =
+                        Tensor::<1, Int>::from_data(TensorData::new(rows, [occupied]), &device);
+                    survivors.index.select(0, rows)
+                };
+                Culled {
+                    index,
+                    surviving,
+                    occupied,
+                    shaded,
+                }
+            }
+            Culling::Host => {
+                let survivors = cull_samples(
+                    &SampleRays {
+                        origins: &to_host(rays.origins.clone()),
+                        directions: &to_host(rays.directions.clone()),
+                        depths: &to_host(depths.clone()),
+                        samples: depths.dims()[1],
+                    },
+                    &frame.global,
+                    &frame.volume,
+                    self.config.cull_distance,
+                );
+                let (rows, shaded) =
+                    self.shade_survivors(&survivors.points, survivors.directions, frame, canonical);
+                let occupied = rows.len();
+                let global: Vec<i64> = rows.iter().map(|&j| survivors.index[j as usize]).collect();
+                Culled {
+                    index: Tensor::<1, Int>::from_data(
+                        TensorData::new(global, [occupied]),
+                        &device,
+                    ),
+                    surviving: survivors.index.len(),
+                    occupied,
+                    shaded,
+                }
+            }
+        }
+    }
+
     /// Renders `rays` of one frame. `jitter` (`[R, S]` uniform in `[0, 1)`) perturbs the depths when training;
     /// `with_consistency` also returns the inputs of the blend-weight consistency loss.
     ///
     /// Samples whose distance to the body (the frame volume's last channel) is at least `cull_distance` never
     /// reach an MLP: on CPU backends culling and the survivors' prior weights are computed on the host
     /// ([`cull_samples`], [`VolumeTensor::weights_at`]) and the survivors uploaded; on GPU backends both run
-    /// on the device ([`Self::cull_on_device`]). The survivors are shaded and scattered back; culled samples
+    /// on the device ([`cull_on_device`]). The survivors are shaded and scattered back; culled samples
     /// have zero density.
     /// The sample closest to the body is always kept, so the MLP batch is never empty. With an occupancy grid
     /// ([`Self::rebuild_occupancy`]), survivors whose warped position falls in an empty canonical cell skip the
@@ -526,7 +596,13 @@ impl AnimatableNerf {
             surviving,
             occupied,
             shaded,
-        } = Culling::for_device(&device).shade(self, rays, depths.clone(), frame, canonical);
+        } = self.shade_culled(
+            Culling::for_device(&device),
+            rays,
+            depths.clone(),
+            frame,
+            canonical,
+        );
 
         let consistency = with_consistency.then(|| {
             ConsistencyTerms::new(
@@ -559,6 +635,16 @@ impl AnimatableNerf {
             total_samples: n,
         }
     }
+}
+
+/// The shaded survivors of a render's samples.
+struct Culled {
+    /// `[occupied]` flat indices `ray · S + sample` of the shaded samples.
+    index: Tensor<1, Int>,
+    /// Samples that survived culling, and those of them that were shaded (in occupied canonical cells).
+    surviving: usize,
+    occupied: usize,
+    shaded: ShadedSamples,
 }
 
 /// `mean(F²)` of a residual `[M, K]`; zero for none.

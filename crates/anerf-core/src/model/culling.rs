@@ -7,11 +7,9 @@ use burn::prelude::*;
 use glam::Vec3;
 use rayon::prelude::*;
 
-use super::animatable::{AnimatableNerf, CanonicalInputs, FrameInputs, ShadedSamples};
 use crate::geometry::skinning::world_to_pose;
 use crate::geometry::{GlobalTransform, VolumeTensor};
 use crate::render::RayBatch;
-use crate::tensor::to_host;
 
 /// The pose-space positions `[R·S, 3]` (metres, ray-major) of the samples along `rays` at `depths` (`[R, S]`,
 /// metres along each ray): `x_pose = R_hᵀ (o + z·d − T_h)`.
@@ -36,16 +34,6 @@ pub enum Culling {
     Device,
 }
 
-/// The shaded survivors of a render's samples.
-pub(super) struct Culled {
-    /// `[occupied]` flat indices `ray · S + sample` of the shaded samples.
-    pub index: Tensor<1, Int>,
-    /// Samples that survived culling, and those of them that were shaded (in occupied canonical cells).
-    pub surviving: usize,
-    pub occupied: usize,
-    pub shaded: ShadedSamples,
-}
-
 impl Culling {
     /// The culling `device` runs.
     pub fn for_device(device: &Device) -> Self {
@@ -53,74 +41,6 @@ impl Culling {
             Culling::Device
         } else {
             Culling::Host
-        }
-    }
-
-    /// Culls the samples of `rays` at `depths` (`[R, S]`) and shades the survivors with `model`.
-    pub(super) fn shade(
-        self,
-        model: &AnimatableNerf,
-        rays: &RayBatch,
-        depths: Tensor<2>,
-        frame: &FrameInputs,
-        canonical: &CanonicalInputs,
-    ) -> Culled {
-        let device = rays.origins.device();
-        match self {
-            Culling::Device => {
-                let survivors = model.cull_on_device(rays, depths, frame);
-                let (rows, shaded) = model.shade_points(
-                    survivors.points,
-                    survivors.prior,
-                    survivors.directions,
-                    frame,
-                    canonical,
-                );
-                let (surviving, occupied) = (survivors.index.dims()[0], rows.len());
-                let index = if occupied == surviving {
-                    survivors.index
-                } else {
-                    let rows =
-                        Tensor::<1, Int>::from_data(TensorData::new(rows, [occupied]), &device);
-                    survivors.index.select(0, rows)
-                };
-                Culled {
-                    index,
-                    surviving,
-                    occupied,
-                    shaded,
-                }
-            }
-            Culling::Host => {
-                let survivors = cull_samples(
-                    &SampleRays {
-                        origins: &to_host(rays.origins.clone()),
-                        directions: &to_host(rays.directions.clone()),
-                        depths: &to_host(depths.clone()),
-                        samples: depths.dims()[1],
-                    },
-                    &frame.global,
-                    &frame.volume,
-                    model.config().cull_distance,
-                );
-                let (rows, shaded) = model.shade_survivors(
-                    &survivors.points,
-                    survivors.directions,
-                    frame,
-                    canonical,
-                );
-                let occupied = rows.len();
-                let global: Vec<i64> = rows.iter().map(|&j| survivors.index[j as usize]).collect();
-                Culled {
-                    index: Tensor::<1, Int>::from_data(
-                        TensorData::new(global, [occupied]),
-                        &device,
-                    ),
-                    surviving: survivors.index.len(),
-                    occupied,
-                    shaded,
-                }
-            }
         }
     }
 }
@@ -222,38 +142,34 @@ pub fn surviving_indices(distance: &[f32], threshold: f32) -> Vec<i64> {
     keep
 }
 
-impl AnimatableNerf {
-    /// [`cull_samples`] on the device, for the GPU backends: the samples along `rays` at `depths` (`[R, S]`,
-    /// metres) placed in pose space, their distance to the body looked up in the frame volume, and those
-    /// closer than `cull_distance` (or else the closest) selected with their view directions and prior
-    /// weights. Only the survivors' indices cross to the host and back (their count fixes the batch's shape);
-    /// the rays, depths and survivors stay on the device.
-    pub(super) fn cull_on_device(
-        &self,
-        rays: &RayBatch,
-        depths: Tensor<2>,
-        frame: &FrameInputs,
-    ) -> DeviceSurvivors {
-        let [r, s] = depths.dims();
-        let pose = pose_samples(rays, depths, &frame.global);
-        let distance = frame.volume.sample_distance(pose.clone()).reshape([r * s]);
-        let near = distance
+/// [`cull_samples`] on the device, for the GPU backends: the samples along `rays` at `depths` (`[R, S]`,
+/// metres) placed in pose space by `global`, their distance to the body looked up in the frame's `volume`,
+/// and those closer than `cull_distance` (metres; or else the closest) selected with their view directions
+/// and prior weights. Only the survivors' indices cross to the host and back (their count fixes the batch's
+/// shape); the rays, depths and survivors stay on the device.
+pub(super) fn cull_on_device(
+    rays: &RayBatch,
+    depths: Tensor<2>,
+    global: &GlobalTransform,
+    volume: &VolumeTensor,
+    cull_distance: f32,
+) -> DeviceSurvivors {
+    let [r, s] = depths.dims();
+    let pose = pose_samples(rays, depths, global);
+    let distance = volume.sample_distance(pose.clone()).reshape([r * s]);
+    let near = distance.clone().lower_elem(cull_distance).argwhere();
+    let index = match near.dims() {
+        [0, _] => distance.argmin(0),
+        [m, _] => near.reshape([m]),
+    };
+    let points = pose.select(0, index.clone());
+    DeviceSurvivors {
+        directions: rays
+            .directions
             .clone()
-            .lower_elem(self.config().cull_distance)
-            .argwhere();
-        let index = match near.dims() {
-            [0, _] => distance.argmin(0),
-            [m, _] => near.reshape([m]),
-        };
-        let points = pose.select(0, index.clone());
-        DeviceSurvivors {
-            directions: rays
-                .directions
-                .clone()
-                .select(0, index.clone().div_scalar(s as i64)),
-            prior: frame.volume.sample(points.clone()).weights,
-            points,
-            index,
-        }
+            .select(0, index.clone().div_scalar(s as i64)),
+        prior: volume.sample(points.clone()).weights,
+        points,
+        index,
     }
 }

@@ -6,7 +6,7 @@ use burn::optim::GradientsParams;
 use burn::prelude::*;
 use glam::Vec3;
 
-use super::culling::{cull_samples, pose_samples, SampleRays};
+use super::culling::{cull_on_device, cull_samples, pose_samples, SampleRays};
 use super::*;
 use crate::geometry::skinning::{points_tensor, BoneMatrices};
 use crate::geometry::BlendWeightVolume;
@@ -387,7 +387,13 @@ fn culling_on_the_device_keeps_the_host_cullings_samples() {
     ] {
         let samples = model.config().samples_per_ray;
         let depths = stratified_depths(rays.near.clone(), rays.far.clone(), samples, None);
-        let on_device = model.cull_on_device(rays, depths.clone(), &s.frame);
+        let on_device = cull_on_device(
+            rays,
+            depths.clone(),
+            &s.frame.global,
+            &s.frame.volume,
+            model.config().cull_distance,
+        );
         let host = cull_samples(
             &SampleRays {
                 origins: &to_host(rays.origins.clone()),

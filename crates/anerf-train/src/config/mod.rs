@@ -15,6 +15,7 @@ mod folder;
 mod frames;
 mod presets;
 mod sources;
+mod table;
 #[cfg(test)]
 mod tests;
 mod validate;
@@ -23,9 +24,10 @@ pub use folder::folder_table;
 pub use frames::FrameRange;
 pub use presets::{preset_help, preset_schedule, preset_short_help, PresetSchedule};
 pub use sources::{
-    apply_override, assemble, defaults, demo_table, from_table, load, load_with, merge,
-    with_overrides, Settings, DEMO_CONFIG,
+    apply_override, assemble, defaults, demo_table, from_table, load, load_with, with_overrides,
+    Settings, DEMO_CONFIG,
 };
+pub use table::merge;
 pub use validate::validate;
 
 /// Errors while reading, merging or validating a configuration.

@@ -6,7 +6,7 @@ use anerf_core::named::Named;
 use anerf_core::InvalidValue;
 use toml::{Table, Value};
 
-use super::sources::merge;
+use super::table::merge;
 use super::{ConfigError, RESOLVED};
 
 /// The step counts, stage-2 batch and silhouette weight a model preset trains with where no file, flag or

@@ -11,6 +11,7 @@ use anerf_core::model::ModelPreset;
 use super::presets::{
     default_learning_rates, default_schedule, expand_model_preset, preset_schedule,
 };
+use super::table::{merge, set_value};
 use super::{validate, ConfigError, ExperimentConfig, FrameRange, RangeSet};
 
 /// Reads `path`, follows its `base` chain (paths relative to the file naming them), applies `overrides`
@@ -118,18 +119,6 @@ fn read_chain(path: &Path, seen: &mut Vec<PathBuf>) -> Result<Table, ConfigError
     Ok(merged)
 }
 
-/// Deep-merges `over` into `base`: tables merge key by key, anything else replaces.
-pub fn merge(base: &mut Table, over: Table) {
-    for (k, v) in over {
-        match (base.get_mut(&k), v) {
-            (Some(Value::Table(b)), Value::Table(o)) => merge(b, o),
-            (_, v) => {
-                base.insert(k, v);
-            }
-        }
-    }
-}
-
 /// Applies one `section.key=value` override (`--set`): the value is parsed as TOML, else taken as a string.
 pub fn apply_override(table: &mut Table, text: &str) -> Result<(), ConfigError> {
     let (key, value) = text
@@ -148,24 +137,6 @@ pub fn apply_override(table: &mut Table, text: &str) -> Result<(), ConfigError> 
         key,
         what: format!("override `{text}`"),
     })
-}
-
-/// Sets the value at a key path, making the sections on the way; the error is the first key on the way
-/// that holds a value instead of a section.
-fn set_value(table: &mut Table, path: &[&str], value: Value) -> Result<(), String> {
-    let (last, sections) = path.split_last().expect("a key path has a key");
-    let mut node = table;
-    for p in sections {
-        node = match node
-            .entry(p.to_string())
-            .or_insert_with(|| Value::Table(Table::new()))
-        {
-            Value::Table(t) => t,
-            _ => return Err(p.to_string()),
-        };
-    }
-    node.insert(last.to_string(), value);
-    Ok(())
 }
 
 /// Values a command sets over a config's tables, typed (command-line flags, the demo's and the benchmark's
