@@ -24,8 +24,8 @@ use crate::{
 pub enum DemoEvent<'a> {
     /// The subject of this spec was synthesised into this folder.
     Synthesised(&'a Path, &'a SyntheticSpec, &'a SyntheticSummary),
-    /// A stage ended (finished, interrupted, or already complete).
-    Stage(Stage, &'a StageOutcome),
+    /// A stage of the run in this folder ended (finished, interrupted, or already complete).
+    Stage(Stage, &'a StageOutcome, &'a Path),
     Evaluated(EvalSplit, &'a Evaluated),
     Rendered(&'a Rendered),
 }
@@ -92,14 +92,14 @@ pub fn demo(
 
     let t = Instant::now();
     let outcome = train(config, &run, options, start(Stage::Train)?, None, stop)?;
-    report(DemoEvent::Stage(Stage::Train, &outcome));
+    report(DemoEvent::Stage(Stage::Train, &outcome, &run));
     if outcome.interrupted {
         return Ok(unfinished);
     }
     timed("stage 1 (train)", t);
     let t = Instant::now();
     let outcome = animate(&run, options, start(Stage::Animate)?, None, stop)?;
-    report(DemoEvent::Stage(Stage::Animate, &outcome));
+    report(DemoEvent::Stage(Stage::Animate, &outcome, &run));
     if outcome.interrupted {
         return Ok(unfinished);
     }

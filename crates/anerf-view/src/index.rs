@@ -8,7 +8,6 @@ use std::hash::{Hash, Hasher};
 use std::path::{Path, PathBuf};
 use std::time::SystemTime;
 
-use anerf_core::named::Named;
 use anerf_eval::report::{read_records_json, read_summary_json, EvalSplit, SavedImages};
 use anerf_eval::silhouette::SilhouetteMetrics;
 use anyhow::{Context, Result};
@@ -146,7 +145,7 @@ impl RunIndex {
 fn evaluations(run: &RunDir, stamps: &mut Stamps) -> Result<Vec<Evaluation>> {
     let mut out = Vec::new();
     for split in EvalSplit::ALL {
-        let dir = run.eval().join(split.name());
+        let dir = run.eval().join(split.to_string());
         let records_path = dir.join("metrics.json");
         let Ok(records_file) = inside_run(run, &records_path) else {
             continue;
@@ -177,7 +176,7 @@ fn evaluations(run: &RunDir, stamps: &mut Stamps) -> Result<Vec<Evaluation>> {
             .filter_map(|name| url_if_file(dir.join(name)))
             .collect();
         out.push(Evaluation {
-            split: split.name().to_string(),
+            split: split.to_string(),
             psnr: summary.map(|s| s.psnr),
             ssim: summary.map(|s| s.ssim),
             silhouette: summary.and_then(|s| s.silhouette),

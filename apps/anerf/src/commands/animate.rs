@@ -2,6 +2,7 @@
 
 use std::path::PathBuf;
 
+use anerf_train::stage::Stage;
 use anyhow::Result;
 use clap::Args;
 
@@ -48,6 +49,6 @@ pub fn run(args: &AnimateArgs) -> Result<bool> {
         args.start.steps,
         &interrupt_flag(),
     )?;
-    super::report_outcome("stage 2", &outcome, &args.run);
+    super::report_outcome(Stage::Animate, &outcome, &args.run);
     Ok(outcome.interrupted)
 }

@@ -6,7 +6,6 @@ use anerf_core::model::ModelPreset;
 use anerf_core::named::Named;
 use anerf_eval::report::markdown_table;
 use anerf_run::demo::{demo, DemoEvent};
-use anerf_train::stage::Stage;
 use anyhow::Result;
 use clap::Args;
 
@@ -37,13 +36,7 @@ pub fn run(args: &DemoArgs) -> Result<()> {
             DemoEvent::Synthesised(out, spec, summary) => {
                 super::synth::print_written(out, spec, summary)
             }
-            DemoEvent::Stage(stage, o) => {
-                let name = match stage {
-                    Stage::Train => "stage 1",
-                    Stage::Animate => "stage 2",
-                };
-                super::report_outcome(name, o, &args.out.join("run"))
-            }
+            DemoEvent::Stage(stage, o, run) => super::report_outcome(stage, o, run),
             DemoEvent::Evaluated(split, e) => super::eval::print(e, split),
             DemoEvent::Rendered(r) => super::render::print(r),
         },

@@ -21,6 +21,7 @@ use std::path::Path;
 
 use anerf_train::config::{self, ConfigError, ExperimentConfig, Settings};
 use anerf_train::run_dir::RunDir;
+use anerf_train::stage::Stage;
 use anerf_train::training::StageOutcome;
 use anyhow::Result;
 
@@ -36,7 +37,7 @@ fn load_config(path: &Path, settings: &Settings, set: &[String]) -> Result<Exper
 }
 
 /// Says on stderr how a stage ended and where its checkpoints are.
-fn report_outcome(stage: &str, o: &StageOutcome, run: &Path) {
+fn report_outcome(stage: Stage, o: &StageOutcome, run: &Path) {
     let checkpoints = RunDir {
         root: run.to_path_buf(),
     }

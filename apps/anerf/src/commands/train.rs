@@ -5,6 +5,7 @@ use std::path::{Path, PathBuf};
 use anerf_core::model::ModelPreset;
 use anerf_device::DeviceSpec;
 use anerf_train::config::{self, ExperimentConfig, FrameRange, Settings};
+use anerf_train::stage::Stage;
 use anerf_train::training::StageOutcome;
 use anyhow::{bail, Result};
 use clap::Args;
@@ -102,7 +103,7 @@ pub fn run(args: &TrainArgs) -> Result<StageOutcome> {
         args.start.steps,
         &interrupt_flag(),
     )?;
-    super::report_outcome("stage 1", &outcome, &run);
+    super::report_outcome(Stage::Train, &outcome, &run);
     Ok(outcome)
 }
 

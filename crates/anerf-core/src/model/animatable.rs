@@ -372,6 +372,21 @@ impl AnimatableNerf {
         self.radiance(warped, dirs, frame, canonical)
     }
 
+    /// The blend-weight consistency's inputs at `shaded` samples: their observation weights against the
+    /// canonical weights at their warped positions, selected by their raw density.
+    pub fn consistency_terms(
+        &self,
+        shaded: &ShadedSamples,
+        canonical: &CanonicalInputs,
+    ) -> ConsistencyTerms {
+        ConsistencyTerms::new(
+            shaded.weights.clone(),
+            self.canonical_weights(shaded.canonical_points.clone(), canonical),
+            shaded.density.clone(),
+            shaded.residual.clone(),
+        )
+    }
+
     /// Observation weights, their residual and canonical positions of pose-space samples `[M, 3]`.
     fn warp(&self, points: Tensor<2>, prior: Tensor<2>, frame: &FrameInputs) -> Warped {
         let (weights, residual) = self.frame_blend(points.clone(), prior, frame.code);
@@ -464,7 +479,7 @@ impl AnimatableNerf {
     /// and world-space unit view directions `[M, 3]` are warped and (with an occupancy grid) those in empty
     /// canonical cells dropped; returns the rows of the given samples that reached the canonical NeRF (all of
     /// them without a grid; never none) and their shading.
-    pub(super) fn shade_points(
+    fn shade_points(
         &self,
         points: Tensor<2>,
         prior: Tensor<2>,
@@ -604,14 +619,7 @@ impl AnimatableNerf {
             canonical,
         );
 
-        let consistency = with_consistency.then(|| {
-            ConsistencyTerms::new(
-                shaded.weights.clone(),
-                self.canonical_weights(shaded.canonical_points.clone(), canonical),
-                shaded.density.clone(),
-                shaded.residual.clone(),
-            )
-        });
+        let consistency = with_consistency.then(|| self.consistency_terms(&shaded, canonical));
         let density = Tensor::<2>::zeros([n, 1], &device).select_assign(
             0,
             index.clone(),

@@ -24,10 +24,7 @@ pub(super) fn pose_samples(
     world_to_pose(world.reshape([r * s, 3]), global)
 }
 
-/// Where a render culls its samples (drops those far from the body before any network sees them). The
-/// one decision, from the device: the GPU backends cull on the device, where reading the batch back and
-/// uploading the survivors would cost more than the lookups; the CPU backends cull on the host and upload
-/// only the survivors' positions and directions.
+/// Where a render culls its samples (the module's doc says why each backend culls where it does).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Culling {
     Host,
@@ -45,7 +42,7 @@ impl Culling {
     }
 }
 
-/// The samples that survive culling, on the device ([`AnimatableNerf::cull_on_device`]).
+/// The samples that survive culling, on the device ([`cull_on_device`]).
 pub(super) struct DeviceSurvivors {
     /// `[M]` flat indices `ray · S + sample`.
     pub index: Tensor<1, Int>,

@@ -9,8 +9,7 @@ use anerf_core::geometry::skinning::BoneMatrices;
 use anerf_core::geometry::BlendWeightVolume;
 use anerf_core::geometry::{Aabb, BoneTransforms, GlobalTransform};
 use anerf_core::model::{
-    AnimatableNerf, CanonicalInputs, ConsistencyTerms, FrameCode, FrameInputs, ModelConfig,
-    ModelPreset, ModelSizes,
+    AnimatableNerf, CanonicalInputs, FrameCode, FrameInputs, ModelConfig, ModelPreset, ModelSizes,
 };
 use anerf_core::named::Named;
 use anerf_core::tensor::from_rows;
@@ -161,12 +160,7 @@ impl StepWorkload {
             &self.frame,
             &self.canonical,
         );
-        let terms = ConsistencyTerms::new(
-            shaded.weights.clone(),
-            model.canonical_weights(shaded.canonical_points.clone(), &self.canonical),
-            shaded.density.clone(),
-            shaded.residual.clone(),
-        );
+        let terms = model.consistency_terms(&shaded, &self.canonical);
         let sums = TermSums::of_points(
             shaded.rgb,
             self.target.clone(),

@@ -15,6 +15,7 @@ use burn::prelude::*;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
+use super::checkpoint::TrainerState;
 use super::driver::{drive, Record, RenderFigures, Single, Step};
 use super::loop_state::LoopState;
 use super::objective::{Objective, TermSums, WeighedTerms};
@@ -27,7 +28,6 @@ use crate::experiment::Experiment;
 use crate::render::render_view;
 use crate::run_dir::RunDir;
 use crate::stage::Stage;
-use crate::training::checkpoint::TrainerState;
 
 /// Stage 1: trains (or resumes) on the training frames and views, writing checkpoints, logs and validation
 /// renders into `run`.
@@ -390,9 +390,9 @@ impl Stage1<'_> {
 
 #[cfg(test)]
 mod tests {
+    use super::super::parallel::run_shards;
     use super::*;
     use crate::config::{self, Settings};
-    use crate::training::parallel::run_shards;
     use anerf_core::model::ModelPreset;
     use anerf_core::tensor::parameter_gradients;
     use anerf_data::synthetic::{write_subject, SyntheticSpec};

@@ -14,6 +14,7 @@ use glam::Vec3;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
+use super::checkpoint::{Checkpoint, TrainerState};
 use super::driver::{drive, Record, RenderFigures, Single, Step};
 use super::loop_state::LoopState;
 use super::objective::Stage2Objective;
@@ -24,7 +25,6 @@ use crate::config::StageConfig;
 use crate::experiment::Experiment;
 use crate::run_dir::RunDir;
 use crate::stage::Stage;
-use crate::training::checkpoint::{Checkpoint, TrainerState};
 
 /// A pose stage 2 fits a blend-weight code for: its model inputs (`code` =
 /// [`anerf_core::model::FrameCode::Novel`]) and the world-space box around its body (metres).
