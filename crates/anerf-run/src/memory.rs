@@ -81,7 +81,6 @@ mod tests {
 
     /// A config of `preset` with its own schedule (batches) and the default eval chunk.
     fn preset(name: &str) -> ExperimentConfig {
-        let mut table = config::defaults();
         let text = format!(
             r#"
 name = "s"
@@ -95,8 +94,7 @@ iccv = {{ train_frames = "0:1", novel_pose_frames = "1:2" }}
 preset = "{name}"
 "#
         );
-        config::merge(&mut table, toml::from_str(&text).unwrap());
-        config::from_table(table).unwrap()
+        config::from_table(toml::from_str(&text).unwrap()).unwrap()
     }
 
     #[test]

@@ -12,6 +12,17 @@ pub enum Stage {
 }
 
 impl Stage {
+    /// Both stages, in the order a run trains them.
+    pub const ALL: [Stage; 2] = [Stage::Train, Stage::Animate];
+
+    /// The stage's section of a config (`train`, `animate`).
+    pub fn section(self) -> &'static str {
+        match self {
+            Stage::Train => "train",
+            Stage::Animate => "animate",
+        }
+    }
+
     /// 1 or 2, as written in checkpoint names, `metrics.jsonl` and messages.
     pub fn number(self) -> u8 {
         self as u8

@@ -61,7 +61,7 @@ fn fit_clip(
     checkpoint: &str,
     options: &JobOptions,
 ) -> Result<FittedMotion> {
-    let stored = StoredFit::new(&run.motions(), &clip);
+    let stored = StoredFit::new(&run.motions(), clip);
     let fitted = |reused, seconds| FittedMotion {
         dir: stored.dir.clone(),
         frames: clip.poses.len(),

@@ -49,7 +49,6 @@ pub fn tiny_config(
     if !subject.exists() {
         write_subject(&SyntheticSpec::tiny(), &subject).unwrap();
     }
-    let mut table = config::defaults();
     let text = format!(
         r#"
 name = "tiny"
@@ -81,7 +80,7 @@ chunk = 4096
         subject.display(),
         dir.join("cache").display()
     );
-    config::merge(&mut table, toml::from_str(&text).unwrap());
+    let mut table: toml::Table = toml::from_str(&text).unwrap();
     for o in overrides {
         config::apply_override(&mut table, o)?;
     }

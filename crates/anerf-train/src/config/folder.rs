@@ -8,7 +8,7 @@ use anyhow::{Context, Result};
 use serde::Serialize;
 use toml::Table;
 
-use super::{defaults, merge, DatasetFormat, FrameRange, FrameSplit};
+use super::{DatasetFormat, FrameRange, FrameSplit};
 
 /// What a folder gives a config: its name, layout and the split (from `splits.json`, written by
 /// `anerf synth`, or four evenly spaced cameras and the first two thirds of the frames).
@@ -39,7 +39,7 @@ struct FolderModel {
     preset: &'static str,
 }
 
-/// The defaults with the folder's values over them, for [`super::assemble`] with the command's flags;
+/// The folder's values as a config table, for [`super::assemble`] with the command's flags;
 /// `load` (body model, person, masks) is what reading the folder takes and goes into the config.
 pub fn folder_table(data: &Path, load: &LoadOptions) -> Result<Table> {
     let kind = anerf_data::loaders::detect_kind(data);
@@ -107,12 +107,7 @@ pub fn folder_table(data: &Path, load: &LoadOptions) -> Result<Table> {
         },
         model: FolderModel { preset: "cpu" },
     };
-    let mut table = defaults();
-    merge(
-        &mut table,
-        Table::try_from(folder).expect("a folder config serialises to TOML"),
-    );
-    Ok(table)
+    Ok(Table::try_from(folder).expect("a folder config serialises to TOML"))
 }
 
 /// The range covering a sorted list of consecutive frame indices (`splits.json` lists them explicitly).

@@ -11,6 +11,7 @@ pub use anerf_data::MaskEdges;
 use serde::{Deserialize, Serialize};
 use toml::{Table, Value};
 
+mod defaults;
 mod folder;
 mod frames;
 mod presets;
@@ -20,12 +21,13 @@ mod table;
 mod tests;
 mod validate;
 
+pub use defaults::{LearningRates, DEFAULT_PRESET};
 pub use folder::folder_table;
 pub use frames::FrameRange;
 pub use presets::{preset_help, preset_schedule, preset_short_help, PresetSchedule};
 pub use sources::{
-    apply_override, assemble, defaults, demo_table, from_table, load, load_with, with_overrides,
-    Settings, DEMO_CONFIG,
+    apply_override, assemble, demo_table, from_table, load, load_with, with_overrides, Settings,
+    DEMO_CONFIG,
 };
 pub use table::merge;
 pub use validate::validate;
@@ -243,7 +245,6 @@ pub struct StageConfig {
     pub batch: usize,
     pub lr: f64,
     pub lr_final: f64,
-    #[serde(default)]
     pub schedule: LrSchedule,
     /// Gradient values are clipped to ±this (the code uses 40); 0 disables clipping.
     pub grad_clip: f32,
@@ -253,48 +254,31 @@ pub struct StageConfig {
     /// Stage 1: what is drawn from the 5×5 band around mask edges: `robust` (the default: with the mask's
     /// labels, each band ray's loss made robust by [`Self::edge_scale`]), `train` (with the mask's labels
     /// and the plain loss: exact masks, as synthetic subjects have) or `skip` (never: the reference's
-    /// `erode_edge`, kept by the paper's experiment configs). Earlier versions' boolean `skip_mask_edges` is
+    /// `erode_edge`, kept by the paper's experiment configs). Earlier versions' boolean (`skip_mask_edges`) is
     /// read as `skip` (true) or `train` (false).
-    #[serde(
-        default,
-        alias = "skip_mask_edges",
-        deserialize_with = "MaskEdges::deserialize_compatible"
-    )]
+    #[serde(deserialize_with = "MaskEdges::deserialize_compatible")]
     pub mask_edges: MaskEdges,
     /// Stage 1, `mask_edges = "robust"`: a band ray's loss is the pseudo-Huber `2c²(√(1 + e/c²) − 1)` of
     /// its squared error `e` (colour plus weighted silhouette) with this scale `c`: about `e` for errors
     /// well below `c²`, growing as `2c·√e` above, so a band label the other views contradict pulls with a
     /// bounded force.
-    #[serde(default = "default_edge_scale")]
     pub edge_scale: f32,
     /// Stage 1: weight of the silhouette loss `mean((acc − m)²)`, the rendered opacity against the mask
     /// (1 on body pixels, 0 elsewhere); 0 disables it (the paper fits colours alone).
-    #[serde(default)]
     pub mask_weight: f32,
     /// Weight of `mean(F²)`, the penalty on the blend-weight residual that keeps the neural weights at the
     /// body model's where the data does not ask otherwise; 0 disables it.
-    #[serde(default)]
     pub residual_weight: f32,
     /// Stop early once the loss, averaged over each `log_every` window, has not fallen by
     /// `plateau_tolerance` (relative) below its best for this many steps; 0 never stops early.
-    #[serde(default)]
     pub plateau_steps: usize,
     /// Relative improvement that counts as progress for `plateau_steps`.
-    #[serde(default = "default_plateau_tolerance")]
     pub plateau_tolerance: f32,
 }
 
-fn default_plateau_tolerance() -> f32 {
-    0.01
-}
-
-fn default_edge_scale() -> f32 {
-    0.1
-}
-
-/// `[eval]`.
+/// `[eval]`; a key it leaves out takes [`EvalConfig::default`]'s value.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
+#[serde(deny_unknown_fields, default)]
 pub struct EvalConfig {
     /// Every n-th frame of a split is evaluated (30 on ZJU-MoCap, 6 on H36M).
     pub frame_interval: usize,
@@ -302,13 +286,19 @@ pub struct EvalConfig {
     pub chunk: usize,
     /// A rendered ray stops once its transmittance falls below this (early ray termination): the colour and
     /// opacity it would still gather are smaller. 0 shades every sample that survives culling.
-    #[serde(default = "default_termination")]
     pub termination: f32,
 }
 
-/// The default [`EvalConfig::termination`]: a 40th of an 8-bit grey level.
-fn default_termination() -> f32 {
-    1e-4
+impl Default for EvalConfig {
+    /// ZJU-MoCap's frame interval, 4,096 rays per chunk, and rays stopped at a transmittance of 1e-4 (a
+    /// 40th of an 8-bit grey level).
+    fn default() -> Self {
+        Self {
+            frame_interval: 30,
+            chunk: 4096,
+            termination: 1e-4,
+        }
+    }
 }
 
 /// A whole experiment, as resolved from its files and overrides.
@@ -316,12 +306,17 @@ fn default_termination() -> f32 {
 #[serde(deny_unknown_fields)]
 pub struct ExperimentConfig {
     pub name: String,
+    /// Seeds the model's initialisation and the ray sampler (default 0).
+    #[serde(default)]
     pub seed: u64,
+    /// The backend that runs (default `flex`, the CPU); `--device` sets it.
+    #[serde(default)]
     pub device: DeviceChoice,
     pub dataset: DatasetConfig,
     pub model: ModelConfig,
     pub train: StageConfig,
     pub animate: StageConfig,
+    #[serde(default)]
     pub eval: EvalConfig,
 }
 

@@ -6,6 +6,7 @@ use anerf_core::named::Named;
 use anerf_core::InvalidValue;
 use toml::{Table, Value};
 
+use super::defaults::DEFAULT_PRESET;
 use super::table::merge;
 use super::{ConfigError, RESOLVED};
 
@@ -106,34 +107,9 @@ pub(super) fn mask_note(weight: f32) -> String {
     }
 }
 
-/// Fills `train.iterations`, `train.mask_weight`, `animate.iterations`, `animate.batch` and
-/// `animate.plateau_steps` where no file or override gave them.
-pub(super) fn default_schedule(table: &mut Table, schedule: PresetSchedule) {
-    let as_int = |n: usize| Value::Integer(n as i64);
-    for (stage, key, value) in [
-        ("train", "iterations", as_int(schedule.train_iterations)),
-        ("animate", "iterations", as_int(schedule.animate_iterations)),
-        ("animate", "batch", as_int(schedule.animate_batch)),
-        (
-            "animate",
-            "plateau_steps",
-            as_int(schedule.animate_plateau_steps),
-        ),
-        (
-            "train",
-            "mask_weight",
-            Value::Float(schedule.train_mask_weight as f64),
-        ),
-    ] {
-        if let Some(Value::Table(t)) = table.get_mut(stage) {
-            t.entry(key).or_insert(value);
-        }
-    }
-}
-
 /// Replaces `[model] preset = "…"` by the preset's full configuration with the other `[model]` keys on top,
-/// and returns the preset. With `preset = "none"` (or none at all) the section must list every field, as a
-/// saved, resolved config does.
+/// and returns the preset ([`DEFAULT_PRESET`] where none is named). With `preset = "none"` no preset
+/// applies and the section must list every field, as a saved, resolved config does.
 pub(super) fn expand_model_preset(table: &mut Table) -> Result<Option<ModelPreset>, ConfigError> {
     let mut model = match table.remove("model") {
         Some(Value::Table(t)) => t,
@@ -148,7 +124,7 @@ pub(super) fn expand_model_preset(table: &mut Table) -> Result<Option<ModelPrese
     let preset = match model.remove("preset") {
         // A resolved config (as saved in a run folder) lists every field itself.
         Some(Value::String(name)) if name == RESOLVED => None,
-        None => None,
+        None => Some(DEFAULT_PRESET),
         Some(Value::String(name)) => Some(name.parse::<ModelPreset>().map_err(|e| {
             InvalidValue::new(
                 "model.preset",
@@ -166,27 +142,4 @@ pub(super) fn expand_model_preset(table: &mut Table) -> Result<Option<ModelPrese
     merge(&mut full, model);
     table.insert("model".into(), Value::Table(full));
     Ok(Some(preset))
-}
-
-/// Fills `lr` and `lr_final` of `[train]` and `[animate]` where no file or override gave them, from the
-/// model's point encoding: the paper's 5e-4 → 5e-5 for frequency encodings, Instant-NGP's 1e-2 → 1e-3 for
-/// hash grids (whose tables barely move at the paper's rate).
-pub(super) fn default_learning_rates(table: &mut Table) {
-    let hash_grid = table
-        .get("model")
-        .and_then(|m| m.get("encoding"))
-        .and_then(|e| e.get("kind"))
-        .and_then(Value::as_str)
-        == Some("hash_grid");
-    let (lr, lr_final) = if hash_grid {
-        (1e-2, 1e-3)
-    } else {
-        (5e-4, 5e-5)
-    };
-    for stage in ["train", "animate"] {
-        if let Some(Value::Table(t)) = table.get_mut(stage) {
-            t.entry("lr").or_insert(Value::Float(lr));
-            t.entry("lr_final").or_insert(Value::Float(lr_final));
-        }
-    }
 }

@@ -1,5 +1,6 @@
-//! Where a config's values come from, in the order they apply: the built-in defaults, a file and its
-//! `base` chain (or another table), a command's typed [`Settings`], then `--set` strings.
+//! Where a config's values come from, in the order they apply: the typed defaults (`defaults.rs`, the
+//! model preset), a file and its `base` chain (or another table), a command's typed [`Settings`], then
+//! `--set` strings.
 
 use std::path::{Path, PathBuf};
 
@@ -8,11 +9,13 @@ use toml::{Table, Value};
 
 use anerf_core::model::ModelPreset;
 
-use super::presets::{
-    default_learning_rates, default_schedule, expand_model_preset, preset_schedule,
-};
+use anerf_core::model::ModelConfig;
+
+use super::defaults::{lay_beneath, DEFAULT_PRESET};
+use super::presets::{expand_model_preset, preset_schedule};
 use super::table::{merge, set_value};
-use super::{validate, ConfigError, ExperimentConfig, FrameRange, RangeSet};
+use super::{validate, ConfigError, ExperimentConfig, FrameRange, RangeSet, StageConfig};
+use crate::stage::Stage;
 
 /// Reads `path`, follows its `base` chain (paths relative to the file naming them), applies `overrides`
 /// (`section.key=value`, the value parsed as TOML or taken as a string), expands `[model] preset`, and
@@ -30,55 +33,39 @@ pub fn load_with(
     assemble(read_chain(path, &mut Vec::new())?, settings, overrides)
 }
 
-/// Builds a config from an already merged table (defaults, presets, validation).
+/// Builds a config from a merged table of files, settings and overrides: expands the model preset, lays
+/// each stage's defaults beneath its section (they follow the preset's schedule and the model's encoding),
+/// reads the typed config and validates it.
 pub fn from_table(mut table: Table) -> Result<ExperimentConfig, ConfigError> {
     table.remove("base");
-    if let Some(preset) = expand_model_preset(&mut table)? {
-        default_schedule(&mut table, preset_schedule(preset));
+    let preset = expand_model_preset(&mut table)?;
+    // The preset leaves a `[model]` section in every case.
+    let model: ModelConfig = typed(table["model"].clone(), "model")?;
+    let schedule = preset_schedule(preset.unwrap_or(DEFAULT_PRESET));
+    for stage in Stage::ALL {
+        let defaults = StageConfig::defaults(stage, &schedule, &model.encoding);
+        lay_beneath(&mut table, stage, &defaults)?;
     }
-    default_learning_rates(&mut table);
-    let config: ExperimentConfig =
-        serde_path_to_error::deserialize(Value::Table(table)).map_err(|e| {
-            ConfigError::Malformed {
-                key: e.path().to_string(),
-                message: e.inner().message().to_string(),
-            }
-        })?;
+    let config: ExperimentConfig = typed(Value::Table(table), "")?;
     validate(&config)?;
     Ok(config)
 }
 
-/// The built-in defaults every config starts from (`configs/` files override them).
-pub fn defaults() -> Table {
-    toml::from_str(DEFAULTS).expect("built-in defaults are valid TOML")
+/// Reads `value`, found at key path `at` (empty at the top), as a `T`; an error names the full key.
+fn typed<T: serde::de::DeserializeOwned>(value: Value, at: &str) -> Result<T, ConfigError> {
+    serde_path_to_error::deserialize(value).map_err(|e| {
+        let inner = e.path().to_string();
+        let key = match (at, inner.as_str()) {
+            (_, ".") => at.to_string(),
+            ("", _) => inner,
+            _ => format!("{at}.{inner}"),
+        };
+        ConfigError::Malformed {
+            key,
+            message: e.inner().message().to_string(),
+        }
+    })
 }
-
-const DEFAULTS: &str = r#"
-seed = 0
-device = "flex"
-
-[model]
-preset = "paper"
-
-[train]
-batch = 1024
-schedule = "paper"
-grad_clip = 40.0
-checkpoint_every = 5000
-validate_every = 5000
-log_every = 100
-
-[animate]
-schedule = "paper"
-grad_clip = 40.0
-checkpoint_every = 2000
-validate_every = 0
-log_every = 100
-
-[eval]
-frame_interval = 30
-chunk = 4096
-"#;
 
 fn read_chain(path: &Path, seen: &mut Vec<PathBuf>) -> Result<Table, ConfigError> {
     let canonical = path.canonicalize().map_err(|source| ConfigError::Read {
@@ -112,7 +99,7 @@ fn read_chain(path: &Path, seen: &mut Vec<PathBuf>) -> Result<Table, ConfigError
                 message: format!("{other}: expected the file name of the base config"),
             })
         }
-        None => defaults(),
+        None => Table::new(),
     };
     let mut merged = base;
     merge(&mut merged, table);
@@ -207,7 +194,7 @@ impl Settings {
     }
 }
 
-/// A config from `table` (merged over the defaults already), then `settings`, then the `--set` strings.
+/// A config from `table`, then `settings`, then the `--set` strings, over the defaults.
 pub fn assemble(
     mut table: Table,
     settings: &Settings,
@@ -235,12 +222,7 @@ pub fn with_overrides(
 /// The experiment of `anerf demo` (also `configs/demo.toml`).
 pub const DEMO_CONFIG: &str = include_str!("../../../../configs/demo.toml");
 
-/// The defaults with `configs/demo.toml` over them; the demo and the benchmark set its folders.
+/// `configs/demo.toml` as a table; the demo and the benchmark set its folders.
 pub fn demo_table() -> Table {
-    let mut table = defaults();
-    merge(
-        &mut table,
-        toml::from_str(DEMO_CONFIG).expect("the demo config is valid TOML"),
-    );
-    table
+    toml::from_str(DEMO_CONFIG).expect("the demo config is valid TOML")
 }

@@ -77,6 +77,70 @@ fn learning_rates_default_by_encoding() {
     assert_eq!(rates(&given), (3e-3, 1e-3, 1e-2, 1e-3));
 }
 
+/// A config that names only its subject gets the documented defaults: the paper's model and schedule,
+/// checkpoints every 5,000 steps in stage 1 and 2,000 in stage 2 (which never validates), ZJU-MoCap's
+/// evaluation interval, seed 0 on the CPU.
+#[test]
+fn a_minimal_config_gets_the_documented_defaults() {
+    let dir = tempfile::tempdir().unwrap();
+    let minimal = SUBJECT.replace("[model]\npreset = \"tiny\"\nwidth = 48\n", "");
+    assert!(!minimal.contains("[model]"));
+    let c = load(&write(dir.path(), "s.toml", &minimal), &[]).unwrap();
+    assert_eq!(c.model, ModelPreset::Paper.config());
+    assert_eq!((c.seed, c.device), (0, DeviceChoice::Flex));
+    let stage = |s: &StageConfig| {
+        (
+            s.iterations,
+            s.batch,
+            s.checkpoint_every,
+            s.validate_every,
+            s.log_every,
+            s.grad_clip,
+            s.schedule,
+        )
+    };
+    assert_eq!(
+        stage(&c.train),
+        (200_000, 1024, 5000, 5000, 100, 40.0, LrSchedule::Paper)
+    );
+    assert_eq!(
+        stage(&c.animate),
+        (10_000, 65_536, 2000, 0, 100, 40.0, LrSchedule::Paper)
+    );
+    assert_eq!(
+        (
+            c.train.edge_scale,
+            c.train.plateau_tolerance,
+            c.train.residual_weight
+        ),
+        (0.1, 0.01, 0.0)
+    );
+    assert_eq!(
+        (c.eval.frame_interval, c.eval.chunk, c.eval.termination),
+        (30, 4096, 1e-4)
+    );
+}
+
+/// The rates follow the model's encoding, not its preset's name: the paper's model switched to the fast
+/// preset's hash grids trains at the hash grids' rates.
+#[test]
+fn learning_rates_follow_an_encoding_set_over_a_preset() {
+    let dir = tempfile::tempdir().unwrap();
+    let encoding = toml::Table::try_from(ModelPreset::Fast.config()).unwrap()["encoding"].clone();
+    let mut table: toml::Table = toml::from_str(SUBJECT).unwrap();
+    let model = table["model"].as_table_mut().unwrap();
+    model.insert("preset".into(), "paper".into());
+    model.insert("encoding".into(), encoding);
+    let path = write(dir.path(), "s.toml", &toml::to_string(&table).unwrap());
+    let c = load(&path, &[]).unwrap();
+    assert_eq!(
+        (c.model.width, c.model.depth),
+        (48, ModelPreset::Paper.config().depth)
+    );
+    assert_eq!((c.train.lr, c.animate.lr_final), (1e-2, 1e-3));
+    assert_eq!(c.train.iterations, 200_000, "the paper preset's schedule");
+}
+
 #[test]
 fn errors_name_the_key_and_the_allowed_values() {
     let dir = tempfile::tempdir().unwrap();
@@ -287,6 +351,16 @@ fn mask_edges_read_names_and_the_earlier_boolean() {
             "{set}"
         );
     }
+    let both = load(
+        &p,
+        &[
+            "train.skip_mask_edges=true".into(),
+            "train.mask_edges=train".into(),
+        ],
+    )
+    .unwrap_err()
+    .to_string();
+    assert!(both.contains("train.skip_mask_edges"), "{both}");
     let saved = r#"{"rays": 64, "body_fraction": 0.5, "skip_mask_edges": false, "near_far_padding": 0.01,
         "convention": "integer"}"#;
     let options: anerf_data::SamplerOptions = serde_json::from_str(saved).unwrap();
