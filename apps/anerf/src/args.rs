@@ -5,7 +5,7 @@ use std::path::PathBuf;
 use std::sync::atomic::AtomicBool;
 use std::sync::Arc;
 
-use anerf_core::DeviceChoice;
+use anerf_core::{DeviceChoice, InvalidValue};
 use anerf_data::motion::FrameRange;
 use anerf_run::mesh::MeshJob;
 use anerf_run::motion::{MotionRequest, Place};
@@ -166,17 +166,22 @@ impl MotionArgs {
 }
 
 /// `x,y,z` in metres.
-fn parse_offset(s: &str) -> Result<DVec3, String> {
+fn parse_offset(s: &str) -> Result<DVec3, InvalidValue> {
+    let bad = || {
+        InvalidValue::new(
+            "--offset",
+            format!("'{s}'"),
+            "x,y,z in metres (three finite numbers)",
+        )
+    };
     let v: Vec<f64> = s
         .split(',')
         .map(|p| p.trim().parse::<f64>())
         .collect::<Result<_, _>>()
-        .map_err(|_| format!("'{s}' is not x,y,z in metres"))?;
+        .map_err(|_| bad())?;
     match v[..] {
         [x, y, z] if v.iter().all(|c| c.is_finite()) => Ok(DVec3::new(x, y, z)),
-        _ => Err(format!(
-            "'{s}' is not x,y,z in metres (three finite numbers)"
-        )),
+        _ => Err(bad()),
     }
 }
 

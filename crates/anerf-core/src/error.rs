@@ -67,4 +67,18 @@ pub enum GeometryError {
     SingularBlend { det: f32 },
     #[error("camera {what} is invalid: {detail}")]
     InvalidCamera { what: &'static str, detail: String },
+    #[error("{got} blend weights do not form rows of {joints} joints")]
+    RaggedWeights { got: usize, joints: usize },
+    #[error("volume of {dims:?} nodes × {channels} channels needs {expected} values, got {got}")]
+    VolumeSize {
+        dims: [usize; 3],
+        channels: usize,
+        expected: usize,
+        got: usize,
+    },
+    /// A box (volume bounds, grid origin and cell) that is empty, inverted or not finite.
+    #[error("{what} {value} is empty or not finite")]
+    EmptyBox { what: &'static str, value: String },
+    #[error("occupancy grid: {cells} cells for dimensions {dims:?}")]
+    GridCells { cells: usize, dims: [usize; 3] },
 }

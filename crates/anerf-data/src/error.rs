@@ -57,10 +57,12 @@ impl DataError {
         }
     }
 
-    pub(crate) fn invalid(path: impl Into<PathBuf>, detail: impl Into<String>) -> Self {
+    /// The content of `path` is not what its layout requires; `detail` (a message or a typed error) says
+    /// how.
+    pub(crate) fn invalid(path: impl Into<PathBuf>, detail: impl std::fmt::Display) -> Self {
         DataError::Invalid {
             path: path.into(),
-            detail: detail.into(),
+            detail: detail.to_string(),
         }
     }
 

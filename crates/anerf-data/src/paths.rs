@@ -37,18 +37,29 @@ pub fn safe_component(raw: &str, fallback: &str) -> String {
     }
 }
 
+/// Why a name cannot be one folder's: its message completes "the name …".
+#[derive(Debug, Clone, Copy, PartialEq, Eq, thiserror::Error)]
+pub enum NameError {
+    #[error("is empty")]
+    Empty,
+    #[error("contains a path separator or NUL")]
+    Separator,
+    #[error("is '.' or '..', which name a folder that already exists")]
+    Dots,
+}
+
 /// Whether `name` is one plain path component (not empty, `.` or `..`, no separator or NUL): what a
-/// name from a config must be before it names a folder. The error says what is wrong.
-pub fn check_component(name: &str) -> Result<(), String> {
+/// name from a config must be before it names a folder.
+pub fn check_component(name: &str) -> Result<(), NameError> {
     if name.is_empty() {
-        return Err("is empty".into());
+        return Err(NameError::Empty);
     }
     if name.contains(['/', '\\', '\0']) {
-        return Err("contains a path separator or NUL".into());
+        return Err(NameError::Separator);
     }
     match Path::new(name).components().collect::<Vec<_>>().as_slice() {
         [Component::Normal(_)] => Ok(()),
-        _ => Err("is '.' or '..', which name a folder that already exists".into()),
+        _ => Err(NameError::Dots),
     }
 }
 
@@ -194,8 +205,16 @@ mod tests {
 
     #[test]
     fn check_component_refuses_what_would_name_another_folder() {
-        for bad in ["", ".", "..", "a/b", "/", "a\\b", "a\0b"] {
-            assert!(check_component(bad).is_err(), "{bad:?}");
+        for (bad, why) in [
+            ("", NameError::Empty),
+            (".", NameError::Dots),
+            ("..", NameError::Dots),
+            ("a/b", NameError::Separator),
+            ("/", NameError::Separator),
+            ("a\\b", NameError::Separator),
+            ("a\0b", NameError::Separator),
+        ] {
+            assert_eq!(check_component(bad), Err(why), "{bad:?}");
         }
         for good in ["subject", "my run", "...x", "a.b"] {
             assert!(check_component(good).is_ok(), "{good:?}");

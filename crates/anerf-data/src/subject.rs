@@ -5,7 +5,7 @@ use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
 use anerf_core::geometry::{Camera, Pose, Skeleton};
-use anerf_core::FrameId;
+use anerf_core::{FrameId, GeometryError};
 use glam::Vec3;
 use serde::{Deserialize, Serialize};
 
@@ -133,16 +133,21 @@ pub struct SkinningWeights {
 
 impl SkinningWeights {
     /// Validates `V × K` weights: finite, non-negative, rows summing to 1 within 1e-3.
-    pub fn new(data: Vec<f32>, num_joints: usize) -> Result<Self, String> {
+    /// An error names the first vertex whose row is wrong ([`GeometryError::AtPoint`]).
+    pub fn new(data: Vec<f32>, num_joints: usize) -> Result<Self, GeometryError> {
         if num_joints == 0 || !data.len().is_multiple_of(num_joints) {
-            return Err(format!(
-                "{} weights do not form rows of {num_joints} joints",
-                data.len()
-            ));
+            return Err(GeometryError::RaggedWeights {
+                got: data.len(),
+                joints: num_joints,
+            });
         }
-        for (v, row) in data.chunks_exact(num_joints).enumerate() {
-            anerf_core::geometry::validate_weights(row, num_joints)
-                .map_err(|e| format!("vertex {v}: {e}"))?;
+        for (index, row) in data.chunks_exact(num_joints).enumerate() {
+            anerf_core::geometry::validate_weights(row, num_joints).map_err(|e| {
+                GeometryError::AtPoint {
+                    index,
+                    source: Box::new(e),
+                }
+            })?;
         }
         Ok(Self { num_joints, data })
     }
@@ -198,8 +203,15 @@ mod tests {
     fn weights_are_validated_per_row() {
         assert!(SkinningWeights::new(vec![0.5, 0.5, 1.0, 0.0], 2).is_ok());
         let err = SkinningWeights::new(vec![0.5, 0.5, 0.7, 0.0], 2).unwrap_err();
-        assert!(err.contains("vertex 1"), "{err}");
-        assert!(SkinningWeights::new(vec![0.5, 0.5, 1.0], 2).is_err());
+        assert!(
+            matches!(&err, GeometryError::AtPoint { index: 1, source }
+                if matches!(**source, GeometryError::WeightsNotNormalised { .. })),
+            "{err}"
+        );
+        assert_eq!(
+            SkinningWeights::new(vec![0.5, 0.5, 1.0], 2),
+            Err(GeometryError::RaggedWeights { got: 3, joints: 2 })
+        );
     }
 }
 

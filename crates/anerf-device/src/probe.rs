@@ -38,6 +38,24 @@ const UNNAMED: &str = "(unnamed)";
 /// How long a probe child may take (its shaders take up to ~30 s to compile on a software driver).
 const TIMEOUT: Duration = Duration::from_secs(180);
 
+/// Why the smoke test failed where it ran (in a probe child, which reports it to the parent as a line).
+#[derive(Debug, Error)]
+pub enum SmokeFailure {
+    #[error("opening {what}: {detail}")]
+    Open { what: &'static str, detail: String },
+    #[error(transparent)]
+    Device(#[from] crate::DeviceError),
+    #[error("no gradient for {0}")]
+    NoGradient(&'static str),
+    #[error("reading the gradient of {name} back: {detail}")]
+    ReadBack { name: &'static str, detail: String },
+    #[error("the gradient of {name} is not finite: {values:?}")]
+    NotFinite {
+        name: &'static str,
+        values: Vec<f32>,
+    },
+}
+
 /// Why a backend failed its check.
 #[derive(Debug, Error)]
 pub enum ProbeError {
@@ -130,7 +148,7 @@ fn stderr_tail(stderr: &str) -> String {
 ///
 /// This checks that kernels compile and run, not that they are right (the backend comparison tests do that).
 /// A broken driver may kill the process instead of returning: use [`probe_in_child`] to find out safely.
-pub fn smoke_test(device: &Device) -> Result<(), String> {
+pub fn smoke_test(device: &Device) -> Result<(), SmokeFailure> {
     let device = device.clone().autodiff();
     let (n, d, w) = (64, 6, 16);
     let ramp = |len: usize, scale: f32| -> Vec<f32> {
@@ -153,12 +171,15 @@ pub fn smoke_test(device: &Device) -> Result<(), String> {
         .sum();
     let grads = loss.backward();
     for (name, grad) in [("w1", w1.grad(&grads)), ("w2", w2.grad(&grads))] {
-        let grad = grad.ok_or_else(|| format!("no gradient for {name}"))?;
+        let grad = grad.ok_or(SmokeFailure::NoGradient(name))?;
         let values = grad
             .try_into_vec_as::<f32>()
-            .map_err(|e| format!("reading the gradient of {name} back: {e:?}"))?;
+            .map_err(|e| SmokeFailure::ReadBack {
+                name,
+                detail: format!("{e:?}"),
+            })?;
         if values.is_empty() || values.iter().any(|v| !v.is_finite()) {
-            return Err(format!("the gradient of {name} is not finite: {values:?}"));
+            return Err(SmokeFailure::NotFinite { name, values });
         }
     }
     Ok(())
@@ -195,7 +216,7 @@ pub fn exit_if_probe_child() {
     let outcome = name
         .to_string_lossy()
         .parse::<DeviceChoice>()
-        .map_err(|e| e.to_string())
+        .map_err(SmokeFailure::from)
         .and_then(|choice| {
             let (device, adapter) = open_for_probe(choice)?;
             smoke_test(&device)?;
@@ -216,15 +237,19 @@ pub fn exit_if_probe_child() {
 /// `choice`'s device, opened in a probe child, and the adapter it runs on. For wgpu, first prints every
 /// adapter found (so that the parent can name them should the next steps crash), then initialises the
 /// device explicitly: a missing adapter becomes an error here instead of a panic in a worker thread.
-fn open_for_probe(choice: DeviceChoice) -> Result<(Device, String), String> {
+fn open_for_probe(choice: DeviceChoice) -> Result<(Device, String), SmokeFailure> {
     #[cfg(feature = "wgpu")]
     if choice == DeviceChoice::Wgpu {
         for adapter in wgpu_adapters() {
             println!("{FOUND}{}", describe_adapter(&adapter));
         }
-        let (device, setup) = Device::wgpu_options()
-            .init_with_setup()
-            .map_err(|e| format!("initialising wgpu: {e}"))?;
+        let (device, setup) =
+            Device::wgpu_options()
+                .init_with_setup()
+                .map_err(|e| SmokeFailure::Open {
+                    what: "wgpu",
+                    detail: e.to_string(),
+                })?;
         return Ok((device, describe_adapter(&setup.adapter.get_info())));
     }
     #[cfg(feature = "cuda")]
@@ -232,17 +257,14 @@ fn open_for_probe(choice: DeviceChoice) -> Result<(Device, String), String> {
         // Loads the driver library first, so that a missing one is reported before Burn starts threads.
         let name = cudarc::driver::CudaContext::new(0)
             .and_then(|context| context.name())
-            .map_err(|e| format!("opening CUDA device 0: {e:?}"))?;
+            .map_err(|e| SmokeFailure::Open {
+                what: "CUDA device 0",
+                detail: format!("{e:?}"),
+            })?;
         println!("{FOUND}CUDA device 0: {name}");
-        return Ok((
-            choice.device().map_err(|e| e.to_string())?,
-            format!("CUDA: {name}"),
-        ));
+        return Ok((choice.device()?, format!("CUDA: {name}")));
     }
-    Ok((
-        choice.device().map_err(|e| e.to_string())?,
-        UNNAMED.to_string(),
-    ))
+    Ok((choice.device()?, UNNAMED.to_string()))
 }
 
 /// Every adapter wgpu finds on this machine, in the order Burn's automatic choice tries the graphics APIs

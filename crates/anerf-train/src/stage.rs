@@ -36,13 +36,13 @@ impl From<Stage> for u8 {
 }
 
 impl TryFrom<u8> for Stage {
-    type Error = String;
+    type Error = anerf_core::InvalidValue;
 
-    fn try_from(n: u8) -> Result<Self, String> {
+    fn try_from(n: u8) -> Result<Self, Self::Error> {
         match n {
             1 => Ok(Stage::Train),
             2 => Ok(Stage::Animate),
-            _ => Err(format!("stage {n} (expected 1 or 2)")),
+            _ => Err(anerf_core::InvalidValue::new("stage", n, "1 or 2")),
         }
     }
 }

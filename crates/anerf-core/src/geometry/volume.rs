@@ -9,6 +9,7 @@ use glam::Vec3;
 use rayon::prelude::*;
 
 use super::Aabb;
+use crate::error::GeometryError;
 use crate::kernels::warp::TrilinearGrid;
 
 /// A `(Nx, Ny, Nz, K+1)` grid whose node `(0,0,0)` sits at `bounds.min` and node `(Nx−1, Ny−1, Nz−1)` at
@@ -34,23 +35,31 @@ impl BlendWeightVolume {
         dims: [usize; 3],
         num_joints: usize,
         data: Vec<f32>,
-    ) -> Result<Self, String> {
-        let expected = dims.iter().product::<usize>() * (num_joints + 1);
+    ) -> Result<Self, GeometryError> {
+        let channels = num_joints + 1;
+        let expected = dims.iter().product::<usize>() * channels;
         if dims.contains(&0) || data.len() != expected {
-            return Err(format!(
-                "volume of {dims:?} nodes × {} channels needs {expected} values, got {}",
-                num_joints + 1,
-                data.len()
-            ));
+            return Err(GeometryError::VolumeSize {
+                dims,
+                channels,
+                expected,
+                got: data.len(),
+            });
         }
         if !(bounds.size().cmpgt(Vec3::ZERO).all()
             && bounds.min.is_finite()
             && bounds.max.is_finite())
         {
-            return Err(format!("volume bounds {bounds:?} are empty or not finite"));
+            return Err(GeometryError::EmptyBox {
+                what: "volume bounds",
+                value: format!("{}..{}", bounds.min, bounds.max),
+            });
         }
         if let Some(i) = data.iter().position(|v| !v.is_finite()) {
-            return Err(format!("volume value {i} is not finite ({})", data[i]));
+            return Err(GeometryError::NonFinite {
+                what: format!("volume value {i}"),
+                value: data[i].to_string(),
+            });
         }
         Ok(Self {
             bounds,
@@ -67,7 +76,7 @@ impl BlendWeightVolume {
         dims: [usize; 3],
         num_joints: usize,
         node_values: impl Fn(Vec3) -> Vec<f32>,
-    ) -> Result<Self, String> {
+    ) -> Result<Self, GeometryError> {
         let nodes = dims.iter().product::<usize>();
         let mut volume = Self {
             bounds,
@@ -546,16 +555,26 @@ pub(crate) mod tests {
             min: Vec3::ZERO,
             max: Vec3::ONE,
         };
-        assert!(BlendWeightVolume::new(b, [2, 2, 2], 1, vec![0.0; 15])
-            .unwrap_err()
-            .contains("16"));
-        assert!(BlendWeightVolume::new(b, [2, 2, 2], 1, vec![f32::NAN; 16])
-            .unwrap_err()
-            .contains("finite"));
+        assert_eq!(
+            BlendWeightVolume::new(b, [2, 2, 2], 1, vec![0.0; 15]).unwrap_err(),
+            GeometryError::VolumeSize {
+                dims: [2, 2, 2],
+                channels: 2,
+                expected: 16,
+                got: 15
+            }
+        );
+        assert!(matches!(
+            BlendWeightVolume::new(b, [2, 2, 2], 1, vec![f32::NAN; 16]).unwrap_err(),
+            GeometryError::NonFinite { .. }
+        ));
         let flat = Aabb {
             min: Vec3::ZERO,
             max: Vec3::new(1.0, 0.0, 1.0),
         };
-        assert!(BlendWeightVolume::new(flat, [2, 2, 2], 1, vec![0.0; 16]).is_err());
+        assert!(matches!(
+            BlendWeightVolume::new(flat, [2, 2, 2], 1, vec![0.0; 16]).unwrap_err(),
+            GeometryError::EmptyBox { .. }
+        ));
     }
 }

@@ -12,7 +12,7 @@ use burn::prelude::*;
 use glam::Vec3;
 use serde::{Deserialize, Serialize};
 
-use crate::error::InvalidValue;
+use crate::error::{GeometryError, InvalidValue};
 use crate::geometry::Aabb;
 use crate::tensor::{from_rows, to_host};
 
@@ -210,18 +210,18 @@ impl OccupancyGrid {
     }
 
     /// Checks a grid read from a file: the cell count matches the dimensions, the geometry is finite.
-    pub fn validate(&self) -> Result<(), String> {
+    pub fn validate(&self) -> Result<(), GeometryError> {
         if cells(self.dims) != self.occupied.len() {
-            return Err(format!(
-                "occupancy grid: {} cells for dimensions {:?}",
-                self.occupied.len(),
-                self.dims
-            ));
+            return Err(GeometryError::GridCells {
+                cells: self.occupied.len(),
+                dims: self.dims,
+            });
         }
         if !(self.min.is_finite() && self.cell.is_finite() && self.cell > 0.0) {
-            return Err(
-                "occupancy grid: its origin and cell size must be finite, the size positive".into(),
-            );
+            return Err(GeometryError::EmptyBox {
+                what: "occupancy grid (origin, cell size)",
+                value: format!("({}, {})", self.min, self.cell),
+            });
         }
         Ok(())
     }
@@ -336,10 +336,13 @@ mod tests {
         let mut value: serde_json::Value = serde_json::from_str(&text).unwrap();
         value["dims"][0] = 7.into();
         let wrong: OccupancyGrid = serde_json::from_value(value.clone()).unwrap();
-        assert!(wrong
-            .validate()
-            .unwrap_err()
-            .contains("cells for dimensions"));
+        assert!(matches!(
+            wrong.validate().unwrap_err(),
+            GeometryError::GridCells {
+                dims: [7, _, _],
+                ..
+            }
+        ));
         let hex = value["occupied"]["hex"].as_str().unwrap().to_string();
         value["occupied"]["hex"] = hex[1..].into();
         let err = serde_json::from_value::<OccupancyGrid>(value)

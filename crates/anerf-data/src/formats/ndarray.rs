@@ -74,13 +74,8 @@ pub enum Descr {
 impl Descr {
     /// Parses a type string such as `<f8`, `|b1`, `>i4`, `|O`, `<U7`, `|S5` (also without the byte-order
     /// character, as in pickled `dtype('f8')`; `big_endian` then comes from the caller).
-    pub fn parse(s: &str) -> Result<Self, String> {
-        let unsupported = || {
-            format!(
-                "unsupported dtype {s:?} (expected one of f4 f8 i4 i8 u4 u1 b1, an object array, or \
-                 fixed-width strings)"
-            )
-        };
+    pub fn parse(s: &str) -> Result<Self, ArrayError> {
+        let unsupported = || ArrayError::UnsupportedDtype(s.to_string());
         let (big_endian, rest) = match s.chars().next() {
             Some('>') => (true, &s[1..]),
             Some('<' | '|' | '=') => (false, &s[1..]),
@@ -133,6 +128,26 @@ pub enum ArrayData {
     U32(Vec<u32>),
     U8(Vec<u8>),
     Bool(Vec<bool>),
+}
+
+/// Raw bytes that do not decode to an array: an element type anerf does not read, or a byte count that
+/// does not fill the shape.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub enum ArrayError {
+    #[error(
+        "unsupported dtype {0:?} (expected one of f4 f8 i4 i8 u4 u1 b1, an object array, or fixed-width \
+         strings)"
+    )]
+    UnsupportedDtype(String),
+    #[error("shape {0:?} overflows")]
+    ShapeOverflow(Vec<usize>),
+    #[error("data has {got} bytes, shape {shape:?} of {dtype:?} needs {needed}")]
+    ByteCount {
+        got: usize,
+        shape: Vec<usize>,
+        dtype: DType,
+        needed: usize,
+    },
 }
 
 /// Elements that do not fill a shape (`∏ shape` elements, 1 for the 0-d shape `[]`).
@@ -262,16 +277,17 @@ impl NdArray {
         shape: Vec<usize>,
         fortran: bool,
         bytes: &[u8],
-    ) -> Result<Self, String> {
-        let count = element_count(&shape).ok_or_else(|| format!("shape {shape:?} overflows"))?;
-        let needed = count
-            .checked_mul(dtype.size())
-            .ok_or_else(|| format!("shape {shape:?} overflows"))?;
+    ) -> Result<Self, ArrayError> {
+        let needed = element_count(&shape)
+            .and_then(|count| count.checked_mul(dtype.size()))
+            .ok_or_else(|| ArrayError::ShapeOverflow(shape.clone()))?;
         if bytes.len() != needed {
-            return Err(format!(
-                "data has {} bytes, shape {shape:?} of {dtype:?} needs {needed}",
-                bytes.len()
-            ));
+            return Err(ArrayError::ByteCount {
+                got: bytes.len(),
+                shape,
+                dtype,
+                needed,
+            });
         }
         macro_rules! decode {
             ($t:ty, $n:expr) => {

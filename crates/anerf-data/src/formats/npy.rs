@@ -4,7 +4,7 @@
 
 use thiserror::Error;
 
-use super::ndarray::{Descr, NdArray};
+use super::ndarray::{ArrayError, Descr, NdArray};
 use super::pickle::{self, PickleError, Value};
 
 /// Why a `.npy` file could not be read.
@@ -18,8 +18,8 @@ pub enum NpyError {
     Version(u8, u8),
     #[error("header {header:?} is malformed: {reason}")]
     Header { header: String, reason: String },
-    #[error("{0}")]
-    Data(String),
+    #[error(transparent)]
+    Array(#[from] ArrayError),
     #[error("holds {0}, expected a numeric array")]
     NotNumeric(String),
     #[error("holds a numeric array, expected a pickled object (np.save of a dict)")]
@@ -108,8 +108,7 @@ pub fn parse(bytes: &[u8]) -> Result<Npy, NpyError> {
     let (header, body) = split_header(bytes)?;
     match header.descr {
         Descr::Numeric { dtype, big_endian } => {
-            let arr = NdArray::from_bytes(dtype, big_endian, header.shape, header.fortran, body)
-                .map_err(NpyError::Data)?;
+            let arr = NdArray::from_bytes(dtype, big_endian, header.shape, header.fortran, body)?;
             Ok(Npy::Array(arr))
         }
         Descr::Object => Ok(Npy::Object(pickle::parse(body)?)),
@@ -156,7 +155,7 @@ fn parse_header(text: &str) -> Result<Header, String> {
                 if p.peek() == Some(b'[') {
                     return Err("structured dtypes are not supported".into());
                 }
-                descr = Some(Descr::parse(&p.string()?)?);
+                descr = Some(Descr::parse(&p.string()?).map_err(|e| e.to_string())?);
             }
             "fortran_order" => fortran = Some(p.boolean()?),
             "shape" => shape = Some(p.shape()?),

@@ -809,7 +809,7 @@ impl<'a> Machine<'a> {
                 big_endian,
                 elsize,
             } => {
-                let d = Descr::parse(typestr).map_err(|e| self.malformed(e))?;
+                let d = Descr::parse(typestr).map_err(|e| self.malformed(e.to_string()))?;
                 Ok(match d {
                     Descr::Numeric { dtype, .. } => Descr::Numeric {
                         dtype,
@@ -857,7 +857,7 @@ impl<'a> Machine<'a> {
                     Descr::Numeric { dtype, big_endian } => {
                         let bytes = self.bytes(arg(1)?, "numpy scalar")?;
                         let a = NdArray::from_bytes(dtype, big_endian, vec![], false, bytes)
-                            .map_err(|e| self.malformed(e))?;
+                            .map_err(|e| self.malformed(e.to_string()))?;
                         Ok(Obj::Leaf(Value::Array(a)))
                     }
                     Descr::Object => {
@@ -909,7 +909,7 @@ impl<'a> Machine<'a> {
         match descr {
             Descr::Numeric { dtype, big_endian } => {
                 let a = NdArray::from_bytes(dtype, big_endian, shape, fortran, bytes)
-                    .map_err(|e| self.malformed(e))?;
+                    .map_err(|e| self.malformed(e.to_string()))?;
                 Ok(Obj::Leaf(Value::Array(a)))
             }
             Descr::Object => Err(self.malformed("object array given as raw bytes")),

@@ -12,6 +12,7 @@ use std::fmt;
 use std::path::{Path, PathBuf};
 use std::str::FromStr;
 
+use anerf_core::InvalidValue;
 use glam::{DQuat, DVec3};
 
 pub use retarget::{retarget, Placement, Scene, TargetBody};
@@ -303,15 +304,21 @@ impl fmt::Display for FrameRange {
 }
 
 impl FromStr for FrameRange {
-    type Err = String;
+    type Err = InvalidValue;
 
-    fn from_str(s: &str) -> Result<Self, String> {
-        let bad = || format!("'{s}' is not a frame range; expected start:end:step (e.g. 0:300:2)");
+    fn from_str(s: &str) -> Result<Self, InvalidValue> {
+        let bad = || {
+            InvalidValue::new(
+                "frame range",
+                format!("'{s}'"),
+                "start:end:step (e.g. 0:300:2)",
+            )
+        };
         let parts: Vec<&str> = s.split(':').collect();
         if parts.len() > 3 {
             return Err(bad());
         }
-        let number = |i: usize| -> Result<Option<usize>, String> {
+        let number = |i: usize| -> Result<Option<usize>, InvalidValue> {
             match parts.get(i).map(|p| p.trim()) {
                 None | Some("") => Ok(None),
                 Some(p) => p.parse().map(Some).map_err(|_| bad()),
@@ -327,8 +334,10 @@ impl FromStr for FrameRange {
             step: number(2)?.unwrap_or(1),
         };
         if range.step == 0 {
-            return Err(format!(
-                "'{s}': the step of a frame range must be at least 1"
+            return Err(InvalidValue::new(
+                "frame range",
+                format!("'{s}'"),
+                "a step of at least 1",
             ));
         }
         Ok(range)
@@ -368,8 +377,8 @@ mod tests {
         assert_eq!(r(":7"), Ok(range(0, Some(7), 1)));
         assert_eq!(r("::3"), Ok(range(0, None, 3)));
         assert_eq!(r("4"), Ok(range(4, Some(5), 1)));
-        assert!(r("1:2:0").unwrap_err().contains("step"));
-        assert!(r("a:b").unwrap_err().contains("frame range"));
+        assert!(r("1:2:0").unwrap_err().expected.contains("step"));
+        assert!(r("a:b").unwrap_err().to_string().contains("frame range"));
         assert!(r("1:2:3:4").is_err());
     }
 

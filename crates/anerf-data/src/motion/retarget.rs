@@ -9,6 +9,7 @@
 use anerf_core::geometry::{
     forward_lbs_points, BoneTransforms, CanonicalPose, GlobalTransform, Pose, Skeleton,
 };
+use anerf_core::GeometryError;
 use glam::{DQuat, DVec3, Vec3};
 
 use super::{Motion, Root, BODY_JOINTS};
@@ -27,18 +28,14 @@ pub struct TargetBody<'a> {
 impl TargetBody<'_> {
     /// The canonical vertices skinned into pose space with `pose`'s joint rotations (its global
     /// transform is not applied).
-    pub fn pose_space_vertices(&self, pose: &Pose) -> Result<Vec<Vec3>, String> {
-        let bones = self
-            .skeleton
-            .bone_transforms(pose, CanonicalPose::TPose)
-            .map_err(|e| e.to_string())?;
+    pub fn pose_space_vertices(&self, pose: &Pose) -> Result<Vec<Vec3>, GeometryError> {
+        let bones = self.skeleton.bone_transforms(pose, CanonicalPose::TPose)?;
         self.skinned(&bones)
     }
 
     /// The canonical vertices skinned with bone transforms `bones` (canonical → pose space).
-    pub fn skinned(&self, bones: &BoneTransforms) -> Result<Vec<Vec3>, String> {
+    pub fn skinned(&self, bones: &BoneTransforms) -> Result<Vec<Vec3>, GeometryError> {
         forward_lbs_points(self.vertices, self.weights.as_slice(), bones)
-            .map_err(|e| format!("skinning the canonical mesh: {e}"))
     }
 }
 
@@ -135,7 +132,7 @@ struct Placed {
 }
 
 impl Placed {
-    fn pose(&self) -> Result<Pose, String> {
+    fn pose(&self) -> Result<Pose, GeometryError> {
         let pose = Pose {
             joint_rotations: self.joints.iter().map(|j| j.as_vec3()).collect(),
             global: GlobalTransform {
@@ -143,8 +140,7 @@ impl Placed {
                 th: self.th.as_vec3(),
             },
         };
-        pose.validate(self.joints.len())
-            .map_err(|e| e.to_string())?;
+        pose.validate(self.joints.len())?;
         Ok(pose)
     }
 

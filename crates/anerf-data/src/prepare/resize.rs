@@ -1,6 +1,7 @@
 //! Downscaling as OpenCV's `cv2.resize` does it: `INTER_AREA` (area averaging) for images and
 //! `INTER_NEAREST` for masks. The output size is `int(size · ratio)` (truncated), as in the reference.
 
+use anerf_core::InvalidValue;
 use image::{GrayImage, Rgb32FImage};
 use serde::{Deserialize, Serialize};
 
@@ -23,13 +24,17 @@ impl ImageScale {
 }
 
 impl TryFrom<f32> for ImageScale {
-    type Error = String;
+    type Error = InvalidValue;
 
-    fn try_from(ratio: f32) -> Result<Self, String> {
+    fn try_from(ratio: f32) -> Result<Self, InvalidValue> {
         if ratio.is_finite() && ratio > 0.0 && ratio <= 1.0 {
             Ok(Self(ratio))
         } else {
-            Err(format!("{ratio} (expected an image scale 0 < ratio ≤ 1)"))
+            Err(InvalidValue::new(
+                "image scale",
+                ratio,
+                "a factor 0 < ratio ≤ 1",
+            ))
         }
     }
 }
@@ -118,7 +123,7 @@ mod tests {
     fn an_image_scale_is_a_factor_in_zero_to_one_and_serialises_as_the_number() {
         for bad in [0.0, -0.5, 1.5, f32::NAN, f32::INFINITY] {
             let err = ImageScale::try_from(bad).unwrap_err();
-            assert!(err.contains("0 < ratio ≤ 1"), "{bad}: {err}");
+            assert!(err.expected.contains("0 < ratio ≤ 1"), "{bad}: {err}");
             assert!(serde_json::from_str::<ImageScale>(&format!("{bad:?}")).is_err());
         }
         let half: ImageScale = serde_json::from_str("0.5").unwrap();

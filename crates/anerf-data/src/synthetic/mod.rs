@@ -389,10 +389,10 @@ impl SynthError {
         }
     }
 
-    pub(crate) fn invalid(field: impl Into<String>, reason: impl Into<String>) -> Self {
+    pub(crate) fn invalid(field: impl Into<String>, reason: impl std::fmt::Display) -> Self {
         SynthError::InvalidSpec {
             field: field.into(),
-            reason: reason.into(),
+            reason: reason.to_string(),
         }
     }
 

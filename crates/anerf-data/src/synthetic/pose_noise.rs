@@ -80,14 +80,16 @@ fn compose(r: Vec3, epsilon: Vec3) -> Vec3 {
 /// `<degrees>` or `<degrees>,<cm>`, as `--pose-noise` takes it; the values are checked by
 /// [`PoseNoise::validate`].
 impl std::str::FromStr for PoseNoise {
-    type Err = String;
+    type Err = SynthError;
 
-    fn from_str(s: &str) -> Result<Self, String> {
+    fn from_str(s: &str) -> Result<Self, SynthError> {
         let number = |text: &str, what: &str| {
             text.trim().parse::<f32>().map_err(|_| {
-                format!(
-                    "pose noise '{s}': {what} '{text}' is not a number (expected <degrees>[,<cm>], \
-                     e.g. 1.5 or 1.5,1)"
+                SynthError::invalid(
+                    format!("pose_noise.{what}"),
+                    format!(
+                        "'{text}' of '{s}' is not a number (expected <degrees>[,<cm>], e.g. 1.5 or 1.5,1)"
+                    ),
                 )
             })
         };
@@ -98,7 +100,7 @@ impl std::str::FromStr for PoseNoise {
                 cm: number(cm, "cm")?,
             },
         };
-        noise.validate().map_err(|e| e.to_string())?;
+        noise.validate()?;
         Ok(noise)
     }
 }
@@ -125,17 +127,17 @@ mod tests {
 
     #[test]
     fn parses_degrees_with_or_without_centimetres_and_refuses_the_rest() {
-        assert_eq!("1.5".parse(), Ok(PoseNoise::new(1.5)));
+        assert_eq!("1.5".parse().ok(), Some(PoseNoise::new(1.5)));
         assert_eq!(PoseNoise::new(1.5).cm, 1.0);
         assert_eq!(
-            " 2 , 0.5".parse(),
-            Ok(PoseNoise {
+            " 2 , 0.5".parse().ok(),
+            Some(PoseNoise {
                 degrees: 2.0,
                 cm: 0.5
             })
         );
         for bad in ["", "x", "1.5,", ",1", "1,2,3", "1.5cm"] {
-            let err = bad.parse::<PoseNoise>().unwrap_err();
+            let err = bad.parse::<PoseNoise>().unwrap_err().to_string();
             assert!(err.contains("expected <degrees>[,<cm>]"), "{bad}: {err}");
         }
         for (bad, field) in [
@@ -144,7 +146,7 @@ mod tests {
             ("21", "degrees"),
             ("1,25", "cm"),
         ] {
-            let err = bad.parse::<PoseNoise>().unwrap_err();
+            let err = bad.parse::<PoseNoise>().unwrap_err().to_string();
             assert!(
                 err.contains(&format!("pose_noise.{field}")) && err.contains("expected 0 to 20"),
                 "{bad}: {err}"

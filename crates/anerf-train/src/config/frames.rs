@@ -1,5 +1,6 @@
 //! Frame ranges `start:end[:step]` of configs and command lines.
 
+use anerf_core::InvalidValue;
 use serde::{Deserialize, Serialize};
 
 /// A half-open range of frame indices `start..end` stepping by `step`, written `"start:end"` or
@@ -45,15 +46,13 @@ impl FrameRange {
 }
 
 impl std::str::FromStr for FrameRange {
-    type Err = String;
+    type Err = InvalidValue;
 
-    fn from_str(s: &str) -> Result<Self, String> {
+    fn from_str(s: &str) -> Result<Self, InvalidValue> {
+        let bad = |expected: &str| InvalidValue::new("frame range", format!("'{s}'"), expected);
+        const FORM: &str = "start:end[:step]";
         let parts: Vec<&str> = s.split(':').collect();
-        let num = |p: &str| {
-            p.trim()
-                .parse::<usize>()
-                .map_err(|_| format!("'{s}' is not a frame range start:end[:step]"))
-        };
+        let num = |p: &str| p.trim().parse::<usize>().map_err(|_| bad(FORM));
         let range = match parts.as_slice() {
             [a, b] => FrameRange {
                 start: num(a)?,
@@ -65,10 +64,10 @@ impl std::str::FromStr for FrameRange {
                 end: num(b)?,
                 step: num(c)?,
             },
-            _ => return Err(format!("'{s}' is not a frame range start:end[:step]")),
+            _ => return Err(bad(FORM)),
         };
         if range.end < range.start || range.step == 0 {
-            return Err(format!("'{s}': expected start ≤ end and a positive step"));
+            return Err(bad("start ≤ end and a positive step"));
         }
         Ok(range)
     }
