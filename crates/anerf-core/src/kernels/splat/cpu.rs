@@ -1,0 +1,280 @@
+//! The rasteriser on the CPU, on plain slices: splats binned into 16 × 16 pixel tiles and sorted front to
+//! back per tile, each pixel composited front to back with 3D Gaussian Splatting's rules (alpha capped at
+//! [`ALPHA_MAX`], splats under [`ALPHA_MIN`] skipped, a pixel stops before its transmittance falls under
+//! [`T_MIN`]), and the backward pass that walks each pixel's splats back to front. Bands of 16 rows run
+//! in parallel.
+
+use rayon::prelude::*;
+
+use super::{RasterSpec, ALPHA_MAX, ALPHA_MIN, PIXEL_WIDTH, SPLAT_WIDTH, TILE, T_MIN};
+
+/// One splat, unpacked from its [`SPLAT_WIDTH`] values.
+#[derive(Debug, Clone, Copy)]
+struct Splat {
+    /// Pixels; pixel `(x, y)` is evaluated at the point `(x, y)`.
+    mean: [f32; 2],
+    /// `(a, b, c)` of the inverse 2-D covariance `[[a, b], [b, c]]` (pixels⁻²).
+    conic: [f32; 3],
+    colour: [f32; 3],
+    opacity: f32,
+}
+
+impl Splat {
+    fn read(splats: &[f32], index: usize) -> Self {
+        let s = &splats[index * SPLAT_WIDTH..(index + 1) * SPLAT_WIDTH];
+        Self {
+            mean: [s[0], s[1]],
+            conic: [s[2], s[3], s[4]],
+            colour: [s[5], s[6], s[7]],
+            opacity: s[8],
+        }
+    }
+
+    /// The Gaussian's exponent at pixel `(px, py)`, and the offsets `(dx, dy)` from its mean.
+    fn power(&self, px: f32, py: f32) -> (f32, f32, f32) {
+        let (dx, dy) = (px - self.mean[0], py - self.mean[1]);
+        let [a, b, c] = self.conic;
+        (-0.5 * (a * dx * dx + c * dy * dy) - b * dx * dy, dx, dy)
+    }
+
+    /// The half-widths in pixels (x, y) of the box outside which its alpha stays under [`ALPHA_MIN`]
+    /// (slightly widened, so that binning never drops a pixel the per-pixel test would keep); `None` for a
+    /// splat that touches no pixel (too transparent, not positive definite, not finite).
+    fn extent(&self) -> Option<(f32, f32)> {
+        let [a, b, c] = self.conic;
+        let det = a * c - b * b;
+        let finite = self.mean.iter().chain(&self.conic).all(|v| v.is_finite());
+        if !(finite && self.opacity >= ALPHA_MIN && a > 0.0 && det > 0.0) {
+            return None;
+        }
+        // o · exp(−q/2) ≥ 1/255  ⇔  q ≤ 2 ln(255 o), with q = dᵀ M d; the ellipse's box is
+        // sqrt(r² Σ_xx) by sqrt(r² Σ_yy) with Σ = M⁻¹.
+        let r2 = 2.0 * (self.opacity / ALPHA_MIN).ln();
+        let widen = |e: f32| e * 1.001 + 0.01;
+        Some((widen((r2 * c / det).sqrt()), widen((r2 * a / det).sqrt())))
+    }
+}
+
+/// The splats of each tile, front to back: tile `t`'s are `order[starts[t]..starts[t + 1]]`.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Bins {
+    pub tiles_x: usize,
+    pub tiles_y: usize,
+    pub starts: Vec<usize>,
+    pub order: Vec<u32>,
+}
+
+impl Bins {
+    /// The splats over tile `(tx, ty)`, front to back.
+    pub fn tile(&self, tx: usize, ty: usize) -> &[u32] {
+        let t = ty * self.tiles_x + tx;
+        &self.order[self.starts[t]..self.starts[t + 1]]
+    }
+}
+
+/// Bins the splats (`[N, SPLAT_WIDTH]`) into tiles, each tile's sorted by depth (then index, so that equal
+/// depths keep their input order).
+pub fn bin(splats: &[f32], spec: &RasterSpec) -> Bins {
+    let n = splats.len() / SPLAT_WIDTH;
+    let tile = TILE as usize;
+    let (w, h) = (spec.width as usize, spec.height as usize);
+    let (tiles_x, tiles_y) = (w.div_ceil(tile), h.div_ceil(tile));
+    // Each splat's pixel box, clipped to the image, as a range of tiles.
+    let boxes: Vec<Option<[usize; 4]>> = (0..n)
+        .into_par_iter()
+        .map(|i| {
+            let s = Splat::read(splats, i);
+            let (ex, ey) = s.extent()?;
+            let range = |m: f32, e: f32, len: usize| {
+                let lo = (m - e).ceil().max(0.0);
+                let hi = (m + e).floor().min(len as f32 - 1.0);
+                (lo <= hi).then(|| (lo as usize / tile, hi as usize / tile))
+            };
+            let (x0, x1) = range(s.mean[0], ex, w)?;
+            let (y0, y1) = range(s.mean[1], ey, h)?;
+            Some([x0, x1, y0, y1])
+        })
+        .collect();
+    let mut keys: Vec<(usize, f32, u32)> = Vec::new();
+    for (i, b) in boxes.iter().enumerate() {
+        let Some([x0, x1, y0, y1]) = *b else { continue };
+        let depth = splats[i * SPLAT_WIDTH + 9];
+        for ty in y0..=y1 {
+            for tx in x0..=x1 {
+                keys.push((ty * tiles_x + tx, depth, i as u32));
+            }
+        }
+    }
+    keys.par_sort_unstable_by(|a, b| a.0.cmp(&b.0).then(a.1.total_cmp(&b.1)).then(a.2.cmp(&b.2)));
+    let mut starts = vec![0; tiles_x * tiles_y + 1];
+    for &(t, _, _) in &keys {
+        starts[t + 1] += 1;
+    }
+    for t in 0..tiles_x * tiles_y {
+        starts[t + 1] += starts[t];
+    }
+    Bins {
+        tiles_x,
+        tiles_y,
+        starts,
+        order: keys.into_iter().map(|(_, _, i)| i).collect(),
+    }
+}
+
+/// One splat's share of a pixel, as the compositing met it.
+#[derive(Debug, Clone, Copy)]
+struct Contribution {
+    index: u32,
+    /// The alpha composited (capped, at least [`ALPHA_MIN`]).
+    alpha: f32,
+    /// `exp(power)`.
+    gaussian: f32,
+    /// Transmittance in front of the splat.
+    before: f32,
+    /// Whether `opacity · gaussian` was under [`ALPHA_MAX`] (above, the cap holds alpha constant).
+    uncapped: bool,
+    dx: f32,
+    dy: f32,
+}
+
+/// Composites pixel `(x, y)` from `list` (front to back), calling `visit` with each splat that contributes;
+/// returns the colour (without background) and the transmittance left.
+fn composite(
+    splats: &[f32],
+    list: &[u32],
+    x: usize,
+    y: usize,
+    mut visit: impl FnMut(&Contribution),
+) -> ([f32; 3], f32) {
+    let (px, py) = (x as f32, y as f32);
+    let mut rgb = [0.0f32; 3];
+    let mut t = 1.0f32;
+    for &index in list {
+        let s = Splat::read(splats, index as usize);
+        let (power, dx, dy) = s.power(px, py);
+        if power > 0.0 {
+            continue;
+        }
+        let gaussian = power.exp();
+        let raw = s.opacity * gaussian;
+        let alpha = raw.min(ALPHA_MAX);
+        if alpha < ALPHA_MIN {
+            continue;
+        }
+        let after = t * (1.0 - alpha);
+        if after < T_MIN {
+            break;
+        }
+        for (c, v) in rgb.iter_mut().zip(s.colour) {
+            *c += t * alpha * v;
+        }
+        visit(&Contribution {
+            index,
+            alpha,
+            gaussian,
+            before: t,
+            uncapped: raw < ALPHA_MAX,
+            dx,
+            dy,
+        });
+        t = after;
+    }
+    (rgb, t)
+}
+
+/// Renders the splats into `out` (`[H·W, PIXEL_WIDTH]`, row-major pixels): premultiplied colour and alpha.
+pub fn forward(splats: &[f32], spec: &RasterSpec, out: &mut [f32]) {
+    let (w, h) = (spec.width as usize, spec.height as usize);
+    assert_eq!(out.len(), w * h * PIXEL_WIDTH, "rasteriser output");
+    let bins = bin(splats, spec);
+    let band = TILE as usize * w * PIXEL_WIDTH;
+    out.par_chunks_mut(band).enumerate().for_each(|(ty, rows)| {
+        for (r, row) in rows.chunks_mut(w * PIXEL_WIDTH).enumerate() {
+            let y = ty * TILE as usize + r;
+            for (x, pixel) in row.chunks_mut(PIXEL_WIDTH).enumerate() {
+                let list = bins.tile(x / TILE as usize, ty);
+                let (rgb, t) = composite(splats, list, x, y, |_| {});
+                pixel[..3].copy_from_slice(&rgb);
+                pixel[3] = 1.0 - t;
+            }
+        }
+    });
+}
+
+/// The gradient of the splats (`[N, SPLAT_WIDTH]`; the depth's is 0) from the gradient of the output
+/// (`[H·W, PIXEL_WIDTH]`).
+pub fn backward(splats: &[f32], grad: &[f32], spec: &RasterSpec, out: &mut [f32]) {
+    let (w, h) = (spec.width as usize, spec.height as usize);
+    assert_eq!(
+        grad.len(),
+        w * h * PIXEL_WIDTH,
+        "rasteriser output gradient"
+    );
+    assert_eq!(out.len(), splats.len(), "splat gradient");
+    let bins = bin(splats, spec);
+    let band = TILE as usize * w * PIXEL_WIDTH;
+    let total = grad
+        .par_chunks(band)
+        .enumerate()
+        .fold(
+            || (vec![0.0f32; splats.len()], Vec::new()),
+            |(mut acc, mut seen), (ty, rows)| {
+                for (r, row) in rows.chunks(w * PIXEL_WIDTH).enumerate() {
+                    let y = ty * TILE as usize + r;
+                    for (x, g) in row.chunks(PIXEL_WIDTH).enumerate() {
+                        let list = bins.tile(x / TILE as usize, ty);
+                        seen.clear();
+                        let (_, t_final) = composite(splats, list, x, y, |c| seen.push(*c));
+                        pixel_backward(splats, &seen, t_final, g, &mut acc);
+                    }
+                }
+                (acc, seen)
+            },
+        )
+        .map(|(acc, _)| acc)
+        .reduce(
+            || vec![0.0f32; splats.len()],
+            |mut a, b| {
+                a.iter_mut().zip(b).for_each(|(x, y)| *x += y);
+                a
+            },
+        );
+    out.copy_from_slice(&total);
+}
+
+/// Adds one pixel's gradient (`g`: colour and alpha) to its splats' rows of `acc`, walking `seen` (the
+/// pixel's contributions, front to back) backwards.
+///
+/// With `C = Σ T_k α_k c_k`, `A = 1 − T_final` and `R_k = Σ_{j>k} T_j α_j c_j` (the colour behind `k`):
+/// `∂C/∂c_k = T_k α_k`, `∂C/∂α_k = T_k c_k − R_k / (1 − α_k)`, `∂A/∂α_k = T_final / (1 − α_k)`; and
+/// below the cap `α = o · exp(p)`, so `∂α/∂o = exp(p)` and `∂α/∂p = α`.
+fn pixel_backward(splats: &[f32], seen: &[Contribution], t_final: f32, g: &[f32], acc: &mut [f32]) {
+    let (g_rgb, g_alpha) = ([g[0], g[1], g[2]], g[3]);
+    let mut behind = [0.0f32; 3];
+    for c in seen.iter().rev() {
+        let i = c.index as usize;
+        let s = Splat::read(splats, i);
+        let row = &mut acc[i * SPLAT_WIDTH..(i + 1) * SPLAT_WIDTH];
+        let weight = c.before * c.alpha;
+        let keep = 1.0 - c.alpha;
+        let mut g_a = g_alpha * t_final / keep;
+        for k in 0..3 {
+            row[5 + k] += weight * g_rgb[k];
+            g_a += g_rgb[k] * (c.before * s.colour[k] - behind[k] / keep);
+            behind[k] += weight * s.colour[k];
+        }
+        if !c.uncapped {
+            continue;
+        }
+        row[8] += g_a * c.gaussian;
+        let g_p = g_a * c.alpha;
+        let [a, b, cc] = s.conic;
+        let (dx, dy) = (c.dx, c.dy);
+        // p = −(a dx² + c dy²)/2 − b dx dy with dx = x − mean_x.
+        row[0] += g_p * (a * dx + b * dy);
+        row[1] += g_p * (cc * dy + b * dx);
+        row[2] += g_p * -0.5 * dx * dx;
+        row[3] += g_p * -dx * dy;
+        row[4] += g_p * -0.5 * dy * dy;
+    }
+}
