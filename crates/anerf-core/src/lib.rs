@@ -8,6 +8,7 @@
 //!   **canonical** (T-pose) through inverse linear blend skinning.
 
 pub mod error;
+pub mod gaussians;
 pub mod geometry;
 pub mod ids;
 pub mod kernels;
