@@ -38,6 +38,8 @@ pub enum Command {
     Plot(commands::plot::PlotArgs),
     /// Write a run as a skinned, animated glTF binary (.glb) for Blender, three.js, Unity, Unreal.
     Export(commands::export::ExportArgs),
+    /// Bake a run into skinned 3D Gaussians that render in real time (<run>/baked/).
+    Bake(commands::bake::BakeArgs),
     /// Serve a local web page of a run (curves, evaluation images, videos, the avatar in 3D) on 127.0.0.1.
     View(commands::view::ViewArgs),
     /// PSNR and SSIM of two images (with a mask: the paper's protocol).

@@ -87,6 +87,10 @@ fn run(cli: Cli) -> anyhow::Result<ExitCode> {
             commands::export::run(&a)?;
             false
         }
+        Command::Bake(a) => {
+            commands::bake::run(&a)?;
+            false
+        }
         Command::View(a) => {
             commands::view::run(&a)?;
             false

@@ -135,7 +135,13 @@ fn render_motion_matches_the_novel_pose_evaluation_within_half_a_db() {
         dir.path(),
         &["train.iterations=30", "animate.iterations=30"],
     );
-    let evaluated = anerf_run::eval(&run, EvalSplit::NovelPose, &quiet()).unwrap();
+    let evaluated = anerf_run::eval(
+        &run,
+        EvalSplit::NovelPose,
+        anerf_run::Avatar::Nerf,
+        &quiet(),
+    )
+    .unwrap();
     let records = read_records_json(&evaluated.dir.join("metrics.json")).unwrap();
     let motion = amass_of_novel_frames(dir.path());
     let views: Vec<usize> = {

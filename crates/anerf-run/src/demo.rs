@@ -107,7 +107,7 @@ pub fn demo(
 
     let t = Instant::now();
     let mut evaluate = |split| -> Result<Evaluated> {
-        let e = eval(&run, split, options)?;
+        let e = eval(&run, split, crate::Avatar::Nerf, options)?;
         report(DemoEvent::Evaluated(split, &e));
         Ok(e)
     };

@@ -7,8 +7,9 @@ use anerf_core::named::Named;
 use anerf_core::FrameId;
 use anerf_eval::report::{EvalRecorder, EvalSplit, Summary};
 use anerf_eval::silhouette::Silhouettes;
-use anyhow::{bail, Result};
+use anyhow::{bail, Context, Result};
 
+use crate::bake::{self, BakedAvatar, DeviceAvatar};
 use crate::memory::Work;
 use crate::{device, load_trained, open_run, JobOptions};
 use anerf_train::experiment::Experiment;
@@ -24,16 +25,43 @@ pub struct Evaluated {
     pub dir: PathBuf,
 }
 
-/// Renders the views of `split` and writes `<run>/eval/<split>/`.
-pub fn eval(run_path: &Path, split: EvalSplit, options: &JobOptions) -> Result<Evaluated> {
+/// Which form of the avatar an evaluation renders.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Avatar {
+    /// The NeRF (results in `<run>/eval/<split>/`).
+    Nerf,
+    /// The Gaussians of `anerf bake` (results in `<run>/baked/eval/<split>/`).
+    Baked,
+}
+
+/// Renders the views of `split` with `avatar` and writes its evaluation folder.
+pub fn eval(
+    run_path: &Path,
+    split: EvalSplit,
+    avatar: Avatar,
+    options: &JobOptions,
+) -> Result<Evaluated> {
     let (run, config) = open_run(run_path, options, Work::Render)?;
     let device = device(&config, options)?;
     let model = load_trained(&run, &config, &device)?;
+    let baked = match avatar {
+        Avatar::Nerf => None,
+        Avatar::Baked => {
+            let avatar = BakedAvatar::load(&run.baked()).with_context(|| {
+                format!(
+                    "the baked avatar of {} (`anerf bake` makes it)",
+                    run.root.display()
+                )
+            })?;
+            Some(DeviceAvatar::new(&avatar, &device))
+        }
+    };
     let mut exp = Experiment::open(config, device, options.progress)?;
     let frames: Vec<FrameId> = match split {
         EvalSplit::TrainingView | EvalSplit::NovelView => exp.train_frames.clone(),
         EvalSplit::NovelPose => {
-            if model.novel_blend.is_none() {
+            // The Gaussians are posed by their own canonical skin: no stage-2 field is needed.
+            if baked.is_none() && model.novel_blend.is_none() {
                 bail!(
                     "{} has no stage-2 checkpoint; run `anerf animate {}` before a novel-pose evaluation",
                     run.root.display(),
@@ -57,14 +85,21 @@ pub fn eval(run_path: &Path, split: EvalSplit, options: &JobOptions) -> Result<E
             run.root.display()
         );
     }
-    let dir = run.eval().join(split.name());
+    let dir = match avatar {
+        Avatar::Nerf => run.eval(),
+        Avatar::Baked => run.baked().join("eval"),
+    }
+    .join(split.name());
     let mut recorder = EvalRecorder::new(&dir, split);
     let bar = options.bar("eval", frames.len() * views.len());
     let mut done = 0;
     for &frame in &frames {
         for &view in &views {
             let camera = exp.prepared.cameras[view.0].clone();
-            let image = render_view(&model, &mut exp, frame, &camera, Some(view))?;
+            let image = match &baked {
+                Some(b) => bake::render_view(b, &model, &exp, frame, &camera, Some(view))?,
+                None => render_view(&model, &mut exp, frame, &camera, Some(view))?,
+            };
             let gt = image
                 .ground_truth
                 .as_ref()

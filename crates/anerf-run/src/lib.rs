@@ -2,6 +2,7 @@
 //! motions, each after checking that its work fits in memory. Each job takes typed arguments and
 //! [`JobOptions`]; the `anerf` app parses command lines into them and prints what they return.
 
+pub mod bake;
 pub mod bench;
 pub mod demo;
 mod eval;
@@ -21,7 +22,7 @@ use anerf_device::DeviceSpec;
 use anyhow::{bail, Context, Result};
 use burn::prelude::Device;
 
-pub use eval::{eval, Evaluated};
+pub use eval::{eval, Avatar, Evaluated};
 pub use export::{capture_to_gltf, export, joint_frame, ExportJob, Exported, TRAINING_FPS};
 pub use mesh::{mesh, MeshFile, MeshFiles};
 pub use motion::{animate_motion, FittedMotion, MotionCamera};
@@ -33,7 +34,7 @@ use anerf_train::config::{self, ExperimentConfig};
 use anerf_train::progress::StageProgress;
 use anerf_train::run_dir::RunDir;
 use anerf_train::stage::Stage;
-use anerf_train::training::checkpoint::Checkpoint;
+use anerf_train::training::checkpoint::{Checkpoint, Restored};
 
 /// What every job takes besides its own arguments.
 #[derive(Debug, Clone, Default)]
@@ -106,11 +107,16 @@ pub fn load_trained(
     config: &ExperimentConfig,
     device: &Device,
 ) -> Result<AnimatableNerf> {
+    Ok(newest_checkpoint(run, config, device)?.model)
+}
+
+/// The run's newest intact checkpoint, as [`load_trained`] chooses it.
+fn newest_checkpoint(run: &RunDir, config: &ExperimentConfig, device: &Device) -> Result<Restored> {
     for stage in [Stage::Animate, Stage::Train] {
         if let Some(r) =
             Checkpoint::restore_newest(&run.checkpoints(), stage, &config.model, device, None)?
         {
-            return Ok(r.model);
+            return Ok(r);
         }
     }
     bail!(

@@ -7,22 +7,14 @@ mod common;
 use std::path::{Path, PathBuf};
 
 use anerf_device::cpu_device;
-use anerf_run::mesh::MeshJob;
 use anerf_run::{capture_to_gltf, ExportJob, TRAINING_FPS};
 use anerf_train::experiment::Experiment;
-use common::{quiet, tiny, trained};
+use common::{quiet, surface, tiny, trained};
 use glam::{Mat4, Quat, Vec3};
 
 fn job(out: Option<PathBuf>, level: f32) -> ExportJob {
     ExportJob {
-        surface: MeshJob {
-            voxel: 0.02,
-            level,
-            smooth: 0,
-            frames: Vec::new(),
-            posed_frames: Vec::new(),
-            carve: true,
-        },
+        surface: surface(0.02, level),
         motion: None,
         view: None,
         out,

@@ -4,6 +4,7 @@
 
 pub mod config;
 pub mod experiment;
+pub mod manifest;
 pub mod plots;
 pub mod progress;
 pub mod render;

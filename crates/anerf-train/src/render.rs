@@ -3,7 +3,7 @@
 use anerf_core::geometry::{Aabb, Camera};
 use anerf_core::model::{AnimatableNerf, CanonicalInputs, FrameInputs};
 use anerf_core::{FrameId, ViewId};
-use anerf_data::{image_rays, SamplerOptions};
+use anerf_data::{image_rays, ImageRays, SamplerOptions};
 use anerf_eval::{ImageSize, PixelMask, RgbImageExt};
 use anyhow::{Context, Result};
 use image::{GrayImage, Rgb32FImage};
@@ -67,6 +67,12 @@ pub fn render_view(
         .with_context(|| format!("rendering {frame}"))
 }
 
+/// The true silhouette of a dataset mask: its non-zero pixels.
+pub fn silhouette(mask: &GrayImage) -> PixelMask {
+    let size = ImageSize::new(mask.width(), mask.height());
+    PixelMask::new(size, mask.pixels().map(|m| m[0] != 0).collect()).expect("sized from the mask")
+}
+
 /// Renders `shot`, `settings.chunk` rays at a time, each ray stopping at transmittance
 /// `settings.termination` ([`AnimatableNerf::march`]).
 pub fn render_shot(
@@ -82,10 +88,7 @@ pub fn render_shot(
         &SamplerOptions::default(),
     )
     .context("casting the image's rays")?;
-    let size = ImageSize::new(rays.width, rays.height);
-    let mut prediction = Rgb32FImage::black(size);
-    let mut hit = vec![false; size.pixels()];
-    let mut opacity = vec![0.0; size.pixels()];
+    let mut shaded = Vec::with_capacity(rays.rays.len());
     let (mut surviving_samples, mut shaded_samples, mut total_samples) = (0, 0, 0);
     let inputs = model.posed_frame(shot.inputs);
     for start in (0..rays.rays.len()).step_by(settings.chunk.max(1)) {
@@ -96,26 +99,51 @@ pub fn render_shot(
         surviving_samples += out.surviving_samples;
         shaded_samples += out.shaded_samples;
         total_samples += out.total_samples;
-        for ((rgb, &acc), [u, v]) in out.rgb.chunks_exact(3).zip(&out.acc).zip(&part.pixels) {
-            prediction.set_pixel(*u, *v, [rgb[0], rgb[1], rgb[2]]);
-            let i = (*v * size.width + *u) as usize;
-            hit[i] = true;
-            opacity[i] = acc;
-        }
+        shaded.extend(
+            out.rgb
+                .chunks_exact(3)
+                .zip(&out.acc)
+                .map(|(rgb, &acc)| [rgb[0], rgb[1], rgb[2], acc]),
+        );
     }
-    let silhouette = shot.ground_truth.map(|(_, mask)| {
-        PixelMask::new(size, mask.pixels().map(|m| m[0] != 0).collect())
-            .expect("the mask's size was checked with the rays")
-    });
     Ok(RenderedImage {
-        prediction,
-        ground_truth: rays.ground_truth,
-        mask: PixelMask::new(size, hit).expect("sized from the image"),
-        opacity,
-        silhouette,
-        rays: rays.rays.len(),
         surviving_samples,
         shaded_samples,
         total_samples,
+        ..RenderedImage::from_rays(rays, shot.ground_truth.map(|(_, m)| m), &shaded)
     })
+}
+
+impl RenderedImage {
+    /// The image whose rays `rays` (the pixels whose ray meets the body's box) were rendered as `shaded`
+    /// (colour on black and opacity, one per ray, in the rays' order), black and transparent elsewhere;
+    /// `dataset_mask` gives the true silhouette. No sample counts (a renderer that marches sets them).
+    pub fn from_rays(
+        rays: ImageRays,
+        dataset_mask: Option<&GrayImage>,
+        shaded: &[[f32; 4]],
+    ) -> Self {
+        assert_eq!(shaded.len(), rays.rays.len(), "one colour per ray");
+        let size = ImageSize::new(rays.width, rays.height);
+        let mut prediction = Rgb32FImage::black(size);
+        let mut hit = vec![false; size.pixels()];
+        let mut opacity = vec![0.0; size.pixels()];
+        for (p, &[u, v]) in shaded.iter().zip(&rays.rays.pixels) {
+            prediction.set_pixel(u, v, [p[0], p[1], p[2]]);
+            let i = (v * size.width + u) as usize;
+            hit[i] = true;
+            opacity[i] = p[3];
+        }
+        Self {
+            prediction,
+            ground_truth: rays.ground_truth,
+            mask: PixelMask::new(size, hit).expect("sized from the image"),
+            opacity,
+            silhouette: dataset_mask.map(silhouette),
+            rays: rays.rays.len(),
+            surviving_samples: 0,
+            shaded_samples: 0,
+            total_samples: 0,
+        }
+    }
 }

@@ -82,6 +82,11 @@ impl RunDir {
         self.root.join("meshes")
     }
 
+    /// The avatar baked into Gaussians (`anerf bake`).
+    pub fn baked(&self) -> PathBuf {
+        self.root.join("baked")
+    }
+
     /// Exported avatars (`anerf export`).
     pub fn exports(&self) -> PathBuf {
         self.root.join("export")

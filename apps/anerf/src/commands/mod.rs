@@ -2,6 +2,7 @@
 //! prints.
 
 pub mod animate;
+pub mod bake;
 pub mod bench;
 pub mod compare;
 pub mod demo;

@@ -11,6 +11,18 @@ use anerf_train::config::{self, ExperimentConfig};
 use anerf_train::run_start::RunStart;
 use anerf_train::training::StageOutcome;
 
+/// The canonical surface at `voxel` metres and iso `level`, with no frames to repose.
+pub fn surface(voxel: f32, level: f32) -> anerf_run::mesh::MeshJob {
+    anerf_run::mesh::MeshJob {
+        voxel,
+        level,
+        smooth: 0,
+        frames: Vec::new(),
+        posed_frames: Vec::new(),
+        carve: true,
+    }
+}
+
 /// Job options without progress bars, on the config's device.
 pub fn quiet() -> JobOptions {
     JobOptions::default()

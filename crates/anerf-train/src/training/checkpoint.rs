@@ -15,9 +15,9 @@ use burn::optim::ModuleOptimizer;
 use burn::prelude::Device;
 use rand_chacha::ChaCha8Rng;
 use serde::{Deserialize, Serialize};
-use sha2::{Digest, Sha256};
 
 use super::loop_state::LoopState;
+use crate::manifest::Manifest;
 use crate::stage::Stage;
 
 /// Everything besides tensors that a resumed run needs.
@@ -69,63 +69,8 @@ const MODEL: &str = "model.bpk";
 const OCCUPANCY: &str = "occupancy.json";
 const OPTIM: &str = "optim.bpk";
 const STATE: &str = "state.json";
-/// Lengths and digests of the other files, written last.
-const MANIFEST: &str = "manifest.json";
 /// Checkpoints kept per stage (older ones are removed after a new one is in place).
 const KEEP: usize = 2;
-
-/// `manifest.json`: what each file of a checkpoint held when it was written.
-#[derive(Debug, Serialize, Deserialize)]
-struct Manifest {
-    files: Vec<FileRecord>,
-}
-
-#[derive(Debug, Serialize, Deserialize)]
-struct FileRecord {
-    name: String,
-    bytes: u64,
-    /// SHA-256 of the contents, lower-case hex.
-    sha256: String,
-}
-
-impl FileRecord {
-    fn of(dir: &Path, name: &str) -> Result<Self> {
-        let bytes = fs::read(dir.join(name))?;
-        Ok(Self {
-            name: name.into(),
-            bytes: bytes.len() as u64,
-            sha256: hex_digest(&bytes),
-        })
-    }
-
-    /// Fails, naming the file, when it is missing or differs from the record.
-    fn check(&self, dir: &Path) -> Result<()> {
-        let path = dir.join(&self.name);
-        let bytes = fs::read(&path).with_context(|| format!("reading {}", path.display()))?;
-        if bytes.len() as u64 != self.bytes {
-            bail!(
-                "{} has {} bytes, {} were written (truncated or replaced)",
-                path.display(),
-                bytes.len(),
-                self.bytes
-            );
-        }
-        if hex_digest(&bytes) != self.sha256 {
-            bail!(
-                "{} differs from what was written (its SHA-256 does not match the manifest)",
-                path.display()
-            );
-        }
-        Ok(())
-    }
-}
-
-fn hex_digest(bytes: &[u8]) -> String {
-    Sha256::digest(bytes)
-        .iter()
-        .map(|b| format!("{b:02x}"))
-        .collect()
-}
 
 /// A checkpoint read back whole: model, recorded state and (when asked for) the optimiser.
 pub struct Restored {
@@ -189,16 +134,7 @@ impl Checkpoint {
             for f in [MODEL, OPTIM] {
                 fs::File::open(tmp.join(f))?.sync_all()?;
             }
-            let manifest = Manifest {
-                files: names
-                    .into_iter()
-                    .map(|n| FileRecord::of(&tmp, n))
-                    .collect::<Result<_>>()?,
-            };
-            write_bytes(
-                &tmp.join(MANIFEST),
-                serde_json::to_string_pretty(&manifest)?.as_bytes(),
-            )?;
+            Manifest::write(&tmp, &names)?;
             if dir.exists() {
                 fs::remove_dir_all(&dir)?;
             }
@@ -342,15 +278,10 @@ impl Checkpoint {
 
     /// Checks every file against the manifest (checkpoints written before manifests existed pass).
     pub fn verify(&self) -> Result<()> {
-        let path = self.dir.join(MANIFEST);
-        if !path.exists() {
-            return Ok(());
+        match Manifest::read(&self.dir)? {
+            Some(manifest) => manifest.check(&self.dir),
+            None => Ok(()),
         }
-        let text =
-            fs::read_to_string(&path).with_context(|| format!("reading {}", path.display()))?;
-        let manifest: Manifest = serde_json::from_str(&text)
-            .with_context(|| format!("{} is not a checkpoint manifest", path.display()))?;
-        manifest.files.iter().try_for_each(|f| f.check(&self.dir))
     }
 
     /// The recorded state.

@@ -1,0 +1,353 @@
+//! Fine-tuning a baked avatar against the run's training images: each step renders one training view of
+//! one training frame (cropped to the body's box) through the splat rasteriser, posed with the bones the
+//! NeRF was trained with, and moves the Gaussians by Adam on an L1 colour loss plus a silhouette loss;
+//! every so often the least opaque Gaussians are pruned and those whose means moved most are split, within
+//! the budget (3D Gaussian Splatting's densification, on the means' gradients in canonical space).
+
+use anerf_core::gaussians::{render, GaussianCloud, SplatView};
+use anerf_core::geometry::{BoneMatrices, Camera, GlobalTransform, PixelConvention};
+use anerf_core::tensor::{from_rows, to_host};
+use anyhow::Result;
+use burn::prelude::*;
+use burn::tensor::activation::sigmoid;
+use glam::{Quat, Vec3};
+use image::{GrayImage, Rgb32FImage};
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+
+use super::adam::RowAdam;
+use super::store::BakedAvatar;
+use anerf_train::progress::StageProgress;
+
+/// Weight of the silhouette term `mean((alpha − mask)²)` beside the L1 colour term.
+const MASK_WEIGHT: f32 = 0.1;
+/// Learning rates: means (metres, decaying a hundredfold over the fit), log-scales, quaternions, opacity
+/// logits, colour coefficients (3D Gaussian Splatting's, for a body-sized scene).
+const LR_MEANS: f64 = 2e-4;
+const LR_OTHERS: [f64; 4] = [5e-3, 1e-3, 2.5e-2, 2.5e-3];
+/// Densify every this many steps, through the first half of the fit.
+const DENSIFY_EVERY: usize = 100;
+/// A densification splits at most this fraction of the Gaussians.
+const SPLIT_FRACTION: f32 = 0.05;
+/// Gaussians less opaque than this, or wider than this many metres, are pruned.
+const PRUNE_OPACITY: f32 = 0.005;
+const PRUNE_SCALE: f32 = 0.2;
+/// A split child's scales are its parent's over this.
+const SPLIT_SHRINK: f32 = 1.6;
+/// Pixels around the body's projected box that a training crop keeps.
+const CROP_MARGIN: f32 = 4.0;
+
+/// One training image: a crop around the body, its camera moved to the crop, and the pose it shows.
+#[derive(Debug, Clone)]
+pub struct Shot {
+    pub camera: Camera,
+    pub global: GlobalTransform,
+    pub bones: anerf_core::geometry::BoneTransforms,
+    /// The crop on black (background set to 0), row-major RGB in `[0, 1]`.
+    pub target: Vec<f32>,
+    /// The crop's mask, 1 on the body.
+    pub mask: Vec<f32>,
+}
+
+impl Shot {
+    /// The crop of `image` and `mask` (seen by `camera`) around the corners of the body's world box
+    /// `corners`, with `CROP_MARGIN` pixels around them.
+    pub fn crop(
+        camera: &Camera,
+        corners: &[Vec3],
+        image: &Rgb32FImage,
+        mask: &GrayImage,
+        global: GlobalTransform,
+        bones: anerf_core::geometry::BoneTransforms,
+    ) -> Self {
+        let (w, h) = (camera.width, camera.height);
+        let projected: Option<Vec<glam::Vec2>> = corners
+            .iter()
+            .map(|&c| camera.project(c, PixelConvention::Integer))
+            .collect();
+        let (x0, y0, x1, y1) = match projected {
+            Some(points) => {
+                let lo = points.iter().fold(glam::Vec2::INFINITY, |a, &p| a.min(p));
+                let hi = points
+                    .iter()
+                    .fold(glam::Vec2::NEG_INFINITY, |a, &p| a.max(p));
+                let clip = |v: f32, n: u32| v.clamp(0.0, n as f32 - 1.0) as u32;
+                (
+                    clip((lo.x - CROP_MARGIN).floor(), w),
+                    clip((lo.y - CROP_MARGIN).floor(), h),
+                    clip((hi.x + CROP_MARGIN).ceil(), w),
+                    clip((hi.y + CROP_MARGIN).ceil(), h),
+                )
+            }
+            None => (0, 0, w - 1, h - 1),
+        };
+        let (cw, ch) = (x1 - x0 + 1, y1 - y0 + 1);
+        let mut target = Vec::with_capacity((cw * ch * 3) as usize);
+        let mut body = Vec::with_capacity((cw * ch) as usize);
+        for y in y0..=y1 {
+            for x in x0..=x1 {
+                let m = f32::from(mask.get_pixel(x, y)[0] != 0);
+                target.extend(image.get_pixel(x, y).0.map(|c| c * m));
+                body.push(m);
+            }
+        }
+        let mut cropped = camera.clone();
+        cropped.intrinsics.z_axis.x -= x0 as f32;
+        cropped.intrinsics.z_axis.y -= y0 as f32;
+        cropped.width = cw;
+        cropped.height = ch;
+        Self {
+            camera: cropped,
+            global,
+            bones,
+            target,
+            mask: body,
+        }
+    }
+}
+
+/// The fit's settings.
+#[derive(Debug, Clone)]
+pub struct FitSettings {
+    pub iterations: usize,
+    pub budget: usize,
+    pub seed: u64,
+    pub log_every: usize,
+}
+
+/// The avatar's tensors while it is fitted, on the plain (non-autodiff) device, with their optimisers.
+struct Fitted {
+    /// means, log_scales, rotations, opacity_logits, colours.
+    values: [Tensor<2>; 5],
+    optims: [RowAdam; 5],
+    skin: Tensor<2>,
+    /// Summed norms of the means' gradients since the last densification `[N, 1]`.
+    moved: Tensor<2>,
+}
+
+impl Fitted {
+    fn new(avatar: &BakedAvatar, device: &Device) -> Self {
+        let cloud = avatar.cloud(device);
+        let values = [
+            cloud.means.val(),
+            cloud.log_scales.val(),
+            cloud.rotations.val(),
+            cloud.opacity_logits.val(),
+            cloud.colours.val(),
+        ];
+        let lrs = [
+            LR_MEANS,
+            LR_OTHERS[0],
+            LR_OTHERS[1],
+            LR_OTHERS[2],
+            LR_OTHERS[3],
+        ];
+        let optims = std::array::from_fn(|i| RowAdam::new(values[i].dims(), lrs[i], device));
+        Self {
+            moved: Tensor::zeros([avatar.means.len(), 1], device),
+            skin: avatar.skin(device),
+            values,
+            optims,
+        }
+    }
+
+    fn len(&self) -> usize {
+        self.values[0].dims()[0]
+    }
+
+    fn cloud(&self, track: bool) -> GaussianCloud {
+        let v = |i: usize| {
+            let t = self.values[i].clone();
+            if track {
+                t.autodiff().require_grad()
+            } else {
+                t
+            }
+        };
+        GaussianCloud::new(v(0), v(1), v(2), v(3), v(4))
+    }
+
+    /// One step on `shot`; returns the step's colour MSE.
+    fn step(&mut self, shot: &Shot) -> f32 {
+        let device = self.skin.device();
+        let cloud = self.cloud(true);
+        let view = SplatView {
+            camera: &shot.camera,
+            global: &shot.global,
+            convention: PixelConvention::Integer,
+        };
+        let bones = BoneMatrices::new(&shot.bones, &device);
+        let image = render(&cloud, self.skin.clone(), &bones, &view);
+        let pixels = shot.mask.len();
+        let rgb = image.clone().slice([0..pixels, 0..3]);
+        let alpha = image.slice([0..pixels, 3..4]);
+        let target = from_rows(&shot.target, pixels, 3, &device);
+        let mask = from_rows(&shot.mask, pixels, 1, &device);
+        let error = rgb - target;
+        let mse: f32 = error.clone().detach().powi_scalar(2).mean().into_scalar();
+        let loss = error.abs().mean() + (alpha - mask).powi_scalar(2).mean() * MASK_WEIGHT;
+        let grads = loss.backward();
+        let params = [
+            &cloud.means,
+            &cloud.log_scales,
+            &cloud.rotations,
+            &cloud.opacity_logits,
+            &cloud.colours,
+        ];
+        for (i, p) in params.into_iter().enumerate() {
+            let Some(g) = p.val().grad(&grads) else {
+                continue;
+            };
+            if i == 0 {
+                self.moved = self.moved.clone() + g.clone().powi_scalar(2).sum_dim(1).sqrt();
+            }
+            self.values[i] = self.optims[i].step(self.values[i].clone(), g);
+        }
+        mse
+    }
+
+    /// Prunes nearly transparent and oversized Gaussians and splits the ones whose means moved most, up to
+    /// `budget` in all.
+    fn densify(&mut self, budget: usize, rng: &mut ChaCha8Rng) {
+        let n = self.len();
+        let opacity = to_host(sigmoid(self.values[3].clone()));
+        let log_scales = to_host(self.values[1].clone());
+        let largest = |i: usize| {
+            log_scales[3 * i..3 * i + 3]
+                .iter()
+                .fold(f32::MIN, |a, &b| a.max(b))
+                .exp()
+        };
+        let kept: Vec<usize> = (0..n)
+            .filter(|&i| opacity[i] >= PRUNE_OPACITY && largest(i) <= PRUNE_SCALE)
+            .collect();
+        let moved = to_host(self.moved.clone());
+        let mut candidates = kept.clone();
+        candidates.sort_by(|&a, &b| moved[b].total_cmp(&moved[a]));
+        let room = budget.saturating_sub(kept.len());
+        let split = candidates
+            .into_iter()
+            .take(((kept.len() as f32 * SPLIT_FRACTION) as usize).min(room))
+            .filter(|&i| moved[i] > 0.0)
+            .collect::<Vec<_>>();
+        let rows: Vec<i64> = kept.iter().chain(&split).map(|&i| i as i64).collect();
+        // Both children of a split parent (the kept row and the appended copy) take a point drawn from the
+        // parent's Gaussian and smaller scales.
+        let rotations = to_host(self.values[2].clone());
+        let mut parent_of_row = vec![None; rows.len()];
+        let split_set: std::collections::HashSet<usize> = split.iter().copied().collect();
+        for (r, &i) in rows.iter().enumerate() {
+            if split_set.contains(&(i as usize)) {
+                parent_of_row[r] = Some(i as usize);
+            }
+        }
+        let mut offsets = vec![0.0f32; rows.len() * 3];
+        let mut shrink = vec![0.0f32; rows.len() * 3];
+        for (r, parent) in parent_of_row.iter().enumerate() {
+            let Some(i) = *parent else { continue };
+            let q = Quat::from_xyzw(
+                rotations[4 * i + 1],
+                rotations[4 * i + 2],
+                rotations[4 * i + 3],
+                rotations[4 * i],
+            )
+            .normalize();
+            let s = Vec3::from_slice(&log_scales[3 * i..3 * i + 3]).exp();
+            let e = Vec3::new(normal(rng), normal(rng), normal(rng));
+            offsets[3 * r..3 * r + 3].copy_from_slice(&(q * (s * e)).to_array());
+            shrink[3 * r..3 * r + 3].fill(SPLIT_SHRINK.ln());
+        }
+        let device = self.skin.device();
+        let index = Tensor::<1, Int>::from_ints(rows.as_slice(), &device);
+        for (value, optim) in self.values.iter_mut().zip(&mut self.optims) {
+            *value = value.clone().select(0, index.clone());
+            optim.select(index.clone());
+        }
+        let m = rows.len();
+        self.values[0] = self.values[0].clone() + from_rows(&offsets, m, 3, &device);
+        self.values[1] = self.values[1].clone() - from_rows(&shrink, m, 3, &device);
+        self.skin = self.skin.clone().select(0, index);
+        self.moved = Tensor::zeros([m, 1], &device);
+    }
+}
+
+/// A standard normal draw (Box–Muller).
+fn normal(rng: &mut ChaCha8Rng) -> f32 {
+    let u: f32 = rng.random_range(f32::EPSILON..1.0);
+    let v: f32 = rng.random_range(0.0..1.0);
+    (-2.0 * u.ln()).sqrt() * (std::f32::consts::TAU * v).cos()
+}
+
+/// What a fit ended with.
+#[derive(Debug, Clone)]
+pub struct FitReport {
+    pub steps: usize,
+    pub seconds: f64,
+    /// PSNR (dB) of the last tenth of the steps' crops (colour on black).
+    pub training_psnr: f64,
+}
+
+/// Fits `start` to `shots` (drawn at random) for `settings.iterations` steps; `device` is a plain (not
+/// autodiff) device: each step tracks its own copy of the values.
+pub fn fit(
+    start: &BakedAvatar,
+    shots: &[Shot],
+    settings: &FitSettings,
+    device: &Device,
+    progress: &StageProgress,
+) -> Result<(BakedAvatar, FitReport)> {
+    anyhow::ensure!(!shots.is_empty(), "no training images to fit the avatar to");
+    let started = std::time::Instant::now();
+    let mut rng = ChaCha8Rng::seed_from_u64(settings.seed);
+    let mut fitted = Fitted::new(start, device);
+    let tail = (settings.iterations / 10).max(1);
+    let mut tail_mse = Vec::with_capacity(tail);
+    let mut window = 0.0f64;
+    for step in 1..=settings.iterations {
+        let decay = (step as f64 / settings.iterations as f64).min(1.0);
+        fitted.optims[0].set_lr(LR_MEANS * 0.01f64.powf(decay));
+        let shot = &shots[rng.random_range(0..shots.len())];
+        let mse = fitted.step(shot);
+        window += mse as f64;
+        if step + tail > settings.iterations {
+            tail_mse.push(mse as f64);
+        }
+        if step % DENSIFY_EVERY == 0 && step <= settings.iterations / 2 {
+            fitted.densify(settings.budget, &mut rng);
+        }
+        if step % settings.log_every.max(1) == 0 {
+            let mean = window / settings.log_every.max(1) as f64;
+            progress.report(
+                step,
+                &format!("psnr {:.2} gaussians {}", psnr(mean), fitted.len()),
+            );
+            window = 0.0;
+        }
+        progress.set_step(step);
+    }
+    let mean_tail = tail_mse.iter().sum::<f64>() / tail_mse.len().max(1) as f64;
+    let report = FitReport {
+        steps: settings.iterations,
+        seconds: started.elapsed().as_secs_f64(),
+        training_psnr: psnr(mean_tail),
+    };
+    let mut avatar = start.with_cloud(&fitted.cloud(false));
+    let (joints, weights) = top_skin(&fitted.skin, start.info.joints);
+    avatar.skin_joints = joints;
+    avatar.skin_weights = weights;
+    avatar.info.gaussians = avatar.means.len();
+    avatar.info.steps = report.steps;
+    avatar.info.seconds = report.seconds;
+    avatar.info.training_psnr = report.training_psnr;
+    Ok((avatar, report))
+}
+
+/// The skin's dense rows back to four joints and weights per Gaussian.
+fn top_skin(skin: &Tensor<2>, joints: usize) -> (Vec<[u16; 4]>, Vec<[f32; 4]>) {
+    anerf_eval::gltf_export::top_weights(&to_host(skin.clone()), joints)
+}
+
+/// PSNR (dB) of a mean squared error of colours in `[0, 1]`.
+pub fn psnr(mse: f64) -> f64 {
+    -10.0 * mse.max(1e-12).log10()
+}
