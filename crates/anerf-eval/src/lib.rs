@@ -13,6 +13,7 @@ pub mod pixels;
 pub mod plots;
 pub mod report;
 pub mod silhouette;
+pub mod splat_ply;
 
 pub use compare::{compare_files, Comparison};
 pub use error::{EvalError, MetricError};

@@ -59,21 +59,7 @@ pub fn export(run_path: &Path, job: &ExportJob, options: &JobOptions) -> Result<
     let device = device(&config, options)?;
     let model = load_trained(&run, &config, &device)?;
     let exp = Experiment::open(config, device, options.progress)?;
-    let (name, fps, poses) = match &job.motion {
-        Some(request) => {
-            let view = anerf_core::ViewId(job.view.unwrap_or(exp.train_views[0].0));
-            let clip = MotionClip::new(request, &exp, view)?;
-            (clip.name, clip.fps, clip.poses)
-        }
-        None => {
-            let poses = exp
-                .train_frames
-                .iter()
-                .map(|&f| exp.frame_pose(&model, f))
-                .collect::<Result<Vec<Pose>>>()?;
-            ("training".to_string(), TRAINING_FPS, poses)
-        }
-    };
+    let (name, fps, poses) = animation(job.motion.as_ref(), job.view, &exp, &model)?;
     let cm = canonical_surface(&model, &exp, &job.surface).context(
         "the canonical mesh (a run whose model has no density above the iso level cannot be exported)",
     )?;
@@ -103,6 +89,32 @@ pub fn export(run_path: &Path, job: &ExportJob, options: &JobOptions) -> Result<
         joints: skeleton.num_joints(),
         frames: poses.len(),
         fps,
+    })
+}
+
+/// The poses an export animates: `motion` put on the subject facing dataset camera `view` (default: the
+/// first training view), else the training frames (their refined fits where the model refines them) at
+/// [`TRAINING_FPS`]; with the animation's name and frame rate.
+pub(crate) fn animation(
+    motion: Option<&MotionRequest>,
+    view: Option<usize>,
+    exp: &Experiment,
+    model: &anerf_core::model::AnimatableNerf,
+) -> Result<(String, f64, Vec<Pose>)> {
+    Ok(match motion {
+        Some(request) => {
+            let view = anerf_core::ViewId(view.unwrap_or(exp.train_views[0].0));
+            let clip = MotionClip::new(request, exp, view)?;
+            (clip.name, clip.fps, clip.poses)
+        }
+        None => {
+            let poses = exp
+                .train_frames
+                .iter()
+                .map(|&f| exp.frame_pose(model, f))
+                .collect::<Result<Vec<Pose>>>()?;
+            ("training".to_string(), TRAINING_FPS, poses)
+        }
     })
 }
 

@@ -1,12 +1,12 @@
 //! `anerf bake` on the tiny trained run: the avatar is written within its budget, fitting it brings the
 //! rendered training views closer to the images than the avatar it started from, the paper's protocol
-//! evaluates it on every split (novel poses without a stage-2 field), and the job keeps an existing bake
-//! and refuses a run without a surface.
+//! evaluates it on every split (novel poses without a stage-2 field), it exports as PLY files, and the job
+//! keeps an existing bake and refuses a run without a surface.
 
 mod common;
 
 use anerf_eval::report::EvalSplit;
-use anerf_run::bake::{bake, BakeJob, BakedAvatar};
+use anerf_run::bake::{bake, export_splats, BakeJob, BakedAvatar, SplatExportJob};
 use anerf_run::Avatar;
 use common::{quiet, surface, tiny, trained};
 
@@ -52,6 +52,25 @@ fn a_baked_avatar_fits_the_training_views_and_evaluates_on_every_split() {
         novel.dir.display()
     );
     assert!(novel.summary.psnr.is_finite() && novel.summary.images > 0);
+
+    // The PLY export: the canonical Gaussians, their skin, one posed file per training frame.
+    let ply = SplatExportJob {
+        motion: None,
+        view: None,
+        out: None,
+        overwrite: false,
+    };
+    let exported = export_splats(&run, &ply, &quiet()).unwrap();
+    let header = std::fs::read(exported.dir.join("avatar.ply")).unwrap();
+    let count = format!("element vertex {}\n", exported.gaussians);
+    assert!(header.windows(count.len()).any(|w| w == count.as_bytes()));
+    let skin: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(exported.dir.join("skin.json")).unwrap()).unwrap();
+    assert_eq!(skin["joints"].as_array().unwrap().len(), exported.gaussians);
+    assert_eq!(exported.frames, 6, "the tiny subject's training frames");
+    assert!(exported.dir.join("frames/frame_000005.ply").is_file());
+    let err = format!("{:#}", export_splats(&run, &ply, &quiet()).unwrap_err());
+    assert!(err.contains("--overwrite"), "{err}");
 
     let kept = BakeJob {
         overwrite: false,

@@ -164,4 +164,15 @@ fn print_row(f: &PresetFigures) {
         opt(f.render.as_ref().and_then(|r| r.peak_mib), 0),
         f.load_before
     );
+    if let Some(b) = &f.baked_render {
+        println!(
+            "{:<6} baked Gaussians: {:.4} s per {}×{} render ({:.1} frames per second), first {:.2} s",
+            f.preset,
+            b.warm_median.unwrap_or(b.seconds),
+            b.width,
+            b.height,
+            1.0 / b.warm_median.unwrap_or(b.seconds),
+            b.seconds
+        );
+    }
 }

@@ -1,7 +1,9 @@
-//! `anerf export`: a run as a skinned glTF binary with the training motion or any motion.
+//! `anerf export`: a run as a skinned glTF binary with the training motion or any motion, or its baked
+//! Gaussians as PLY files.
 
 use std::path::PathBuf;
 
+use anerf_run::bake::{export_splats, SplatExportJob};
 use anerf_run::{ExportJob, Exported};
 use anyhow::{bail, Result};
 use clap::{Args, ValueEnum};
@@ -13,6 +15,9 @@ use crate::args::{Common, MotionArgs, SurfaceArgs};
 pub enum ExportFormat {
     /// Binary glTF 2.0: skinned mesh, skeleton, animation.
     Glb,
+    /// The baked Gaussians (`anerf bake`) in 3D Gaussian Splatting's PLY layout: the canonical avatar
+    /// with its skin (skin.json) and one posed file per animation frame.
+    Ply,
 }
 
 #[derive(Debug, Args)]
@@ -21,7 +26,8 @@ pub struct ExportArgs {
     pub run: PathBuf,
     #[arg(long, value_enum, default_value_t = ExportFormat::Glb)]
     pub format: ExportFormat,
-    /// The file to write (default: <run>/export/avatar.glb).
+    /// The file to write (glb; default: <run>/export/avatar.glb) or the folder (ply; default:
+    /// <run>/export/splats/).
     #[arg(long)]
     pub out: Option<PathBuf>,
     /// Replace the file if it exists.
@@ -36,7 +42,32 @@ pub struct ExportArgs {
     pub common: Common,
 }
 
-pub fn run(args: &ExportArgs) -> Result<Exported> {
+pub fn run(args: &ExportArgs) -> Result<()> {
+    match args.format {
+        ExportFormat::Glb => glb(args).map(|_| ()),
+        ExportFormat::Ply => ply(args),
+    }
+}
+
+fn ply(args: &ExportArgs) -> Result<()> {
+    let job = SplatExportJob {
+        motion: args.motion.request(),
+        view: None,
+        out: args.out.clone(),
+        overwrite: args.overwrite,
+    };
+    let exported = export_splats(&args.run, &job, &args.common.options())?;
+    println!(
+        "wrote {}: avatar.ply ({} Gaussians), skin.json, {} posed frames at {} fps in frames/",
+        exported.dir.display(),
+        exported.gaussians,
+        exported.frames,
+        exported.fps
+    );
+    Ok(())
+}
+
+fn glb(args: &ExportArgs) -> Result<Exported> {
     if let Some(out) = &args.out {
         if out.extension().is_none_or(|e| e != "glb") {
             bail!("--out {}: expected a .glb file name", out.display());

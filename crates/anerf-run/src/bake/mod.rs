@@ -4,19 +4,29 @@
 //! ([`store`]).
 
 mod adam;
+mod export;
 pub mod fit;
 mod init;
 pub mod store;
 
 use std::path::{Path, PathBuf};
 
-use anerf_core::geometry::CanonicalPose;
+use anerf_core::gaussians::{render, GaussianCloud, SplatView};
+use anerf_core::geometry::{
+    BoneMatrices, BoneTransforms, Camera, CanonicalPose, PixelConvention, Pose,
+};
+use anerf_core::model::AnimatableNerf;
+use anerf_core::tensor::to_host;
+use anerf_core::{FrameId, ViewId};
+use anerf_train::render::RenderedImage;
 use anyhow::{bail, Context, Result};
+use burn::prelude::{Device, Tensor};
 
 use crate::memory::Work;
 use crate::mesh::{canonical_surface, MeshJob};
 use crate::{device, newest_checkpoint, open_run, JobOptions};
 use anerf_train::experiment::Experiment;
+pub use export::{export_splats, PosedSplats, SplatExportJob, SplatExported};
 use fit::{FitSettings, Shot};
 pub use store::{AvatarInfo, BakedAvatar};
 
@@ -105,18 +115,26 @@ pub fn bake(run_path: &Path, job: &BakeJob, options: &JobOptions) -> Result<Bake
     })
 }
 
-/// Every training view of every training frame, cropped to the body, posed as the NeRF renders it.
-fn training_shots(
-    model: &anerf_core::model::AnimatableNerf,
+/// Frame `frame`'s pose as the NeRF renders it (the refined fit where the model refines training frames)
+/// and its bone transforms (canonical → pose space).
+fn frame_bones(
+    model: &AnimatableNerf,
     exp: &Experiment,
-) -> Result<Vec<Shot>> {
+    frame: FrameId,
+) -> Result<(Pose, BoneTransforms)> {
+    let pose = exp.frame_pose(model, frame)?;
+    let bones = exp
+        .prepared
+        .skeleton
+        .bone_transforms(&pose, CanonicalPose::TPose)?;
+    Ok((pose, bones))
+}
+
+/// Every training view of every training frame, cropped to the body, posed as the NeRF renders it.
+fn training_shots(model: &AnimatableNerf, exp: &Experiment) -> Result<Vec<Shot>> {
     let mut shots = Vec::new();
     for &frame in &exp.train_frames {
-        let pose = exp.frame_pose(model, frame)?;
-        let bones = exp
-            .prepared
-            .skeleton
-            .bone_transforms(&pose, CanonicalPose::TPose)?;
+        let (pose, bones) = frame_bones(model, exp, frame)?;
         let corners = exp.frame_bounds(frame)?.corners();
         for &view in &exp.train_views {
             let camera = &exp.prepared.cameras[view.0];
@@ -135,14 +153,14 @@ fn training_shots(
 
 /// A baked avatar on a device, ready to render.
 pub struct DeviceAvatar {
-    pub cloud: anerf_core::gaussians::GaussianCloud,
+    pub cloud: GaussianCloud,
     /// Dense blend weights `[N, K]`.
-    pub skin: burn::prelude::Tensor<2>,
+    pub skin: Tensor<2>,
 }
 
 impl DeviceAvatar {
     /// Uploads `avatar` to `device`.
-    pub fn new(avatar: &BakedAvatar, device: &burn::prelude::Device) -> Self {
+    pub fn new(avatar: &BakedAvatar, device: &Device) -> Self {
         Self {
             cloud: avatar.cloud(device),
             skin: avatar.skin(device),
@@ -150,23 +168,42 @@ impl DeviceAvatar {
     }
 }
 
+/// The avatar at frame `frame`'s pose (the refined fit where the model refines training frames) seen by
+/// `camera`: `[H·W, 4]` row-major colour on black and opacity, on the host. What a real-time viewer pays
+/// per image (posing, projection, rasterisation, read-back).
+pub fn render_pixels(
+    avatar: &DeviceAvatar,
+    model: &AnimatableNerf,
+    exp: &Experiment,
+    frame: FrameId,
+    camera: &Camera,
+) -> Result<Vec<f32>> {
+    let (pose, bones) = frame_bones(model, exp, frame)?;
+    let view = SplatView {
+        camera,
+        global: &pose.global,
+        convention: PixelConvention::Integer,
+    };
+    let device = avatar.skin.device();
+    Ok(to_host(render(
+        &avatar.cloud,
+        avatar.skin.clone(),
+        &BoneMatrices::new(&bones, &device),
+        &view,
+    )))
+}
+
 /// Renders frame `frame` of the experiment with the baked avatar, as [`anerf_train::render::render_view`]
 /// renders it with the NeRF: the same pose (the refined fit where the model refines training frames), the
 /// same pixels (those whose ray meets the body's box; black elsewhere) and the same ground truth.
 pub fn render_view(
     avatar: &DeviceAvatar,
-    model: &anerf_core::model::AnimatableNerf,
+    model: &AnimatableNerf,
     exp: &Experiment,
-    frame: anerf_core::FrameId,
-    camera: &anerf_core::geometry::Camera,
-    view: Option<anerf_core::ViewId>,
-) -> Result<anerf_train::render::RenderedImage> {
-    use anerf_core::geometry::{BoneMatrices, PixelConvention};
-    let pose = exp.frame_pose(model, frame)?;
-    let bones = exp
-        .prepared
-        .skeleton
-        .bone_transforms(&pose, CanonicalPose::TPose)?;
+    frame: FrameId,
+    camera: &Camera,
+    view: Option<ViewId>,
+) -> Result<RenderedImage> {
     let images = match view {
         Some(v) => Some((exp.prepared.image(frame, v)?, exp.prepared.mask(frame, v)?)),
         None => None,
@@ -179,19 +216,8 @@ pub fn render_view(
         &options,
     )
     .context("the pixels the body's box covers")?;
-    let splat_view = anerf_core::gaussians::SplatView {
-        camera,
-        global: &pose.global,
-        convention: options.convention,
-    };
     debug_assert_eq!(options.convention, PixelConvention::Integer);
-    let device = avatar.skin.device();
-    let pixels = anerf_core::tensor::to_host(anerf_core::gaussians::render(
-        &avatar.cloud,
-        avatar.skin.clone(),
-        &BoneMatrices::new(&bones, &device),
-        &splat_view,
-    ));
+    let pixels = render_pixels(avatar, model, exp, frame, camera)?;
     let width = rays.width;
     let shaded: Vec<[f32; 4]> = rays
         .rays
@@ -202,7 +228,7 @@ pub fn render_view(
             [pixels[i], pixels[i + 1], pixels[i + 2], pixels[i + 3]]
         })
         .collect();
-    Ok(anerf_train::render::RenderedImage::from_rays(
+    Ok(RenderedImage::from_rays(
         rays,
         images.as_ref().map(|(_, m)| m),
         &shaded,

@@ -57,6 +57,9 @@ pub struct PresetFigures {
     /// Peak resident memory during the steps, MiB (`VmHWM`).
     pub step_peak_mib: Option<f64>,
     pub render: Option<RenderFigures>,
+    /// The same view rendered by the run's baked Gaussians (`--run` with a baked avatar), in turns with
+    /// the NeRF's renders.
+    pub baked_render: Option<RenderFigures>,
     /// One-minute load average before the preset started (other users of the machine).
     pub load_before: f64,
 }
@@ -120,10 +123,11 @@ pub fn bench(
             (Vec::new(), None)
         };
         let step_seconds: Vec<f64> = step_times.iter().map(|t| t.wall).collect();
-        let render = if job.render_size > 0 {
-            Some(render::time_render(job, preset, &device)?)
+        let (render, baked_render) = if job.render_size > 0 {
+            let (nerf, baked) = render::time_render(job, preset, &device)?;
+            (Some(nerf), baked)
         } else {
-            None
+            (None, None)
         };
         let step_median = median(&step_seconds);
         let figures = PresetFigures {
@@ -136,6 +140,7 @@ pub fn bench(
             step_seconds,
             step_peak_mib,
             render,
+            baked_render,
             load_before,
         };
         report(&figures)?;

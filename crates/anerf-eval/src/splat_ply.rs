@@ -1,0 +1,219 @@
+//! Gaussians in the PLY layout of 3D Gaussian Splatting, which splat viewers and tools read (SuperSplat,
+//! the antimatter15 and PlayCanvas viewers, gsplat): one binary `vertex` element of float properties
+//! `x y z nx ny nz f_dc_0 f_dc_1 f_dc_2 f_rest_* opacity scale_0 scale_1 scale_2 rot_0 rot_1 rot_2 rot_3`.
+//! Positions in metres; `f_dc` the degree-0 harmonic coefficients (r, g, b); `f_rest` the higher ones
+//! channel by channel (every red coefficient, then green, then blue: 3DGS's order); `opacity` a logit;
+//! `scale` natural logarithms of the standard deviations; `rot` a quaternion `w x y z`; normals 0.
+
+use std::path::Path;
+
+use anerf_data::atomic::write_with;
+
+use crate::error::EvalError;
+
+/// The Gaussians to write, one entry per Gaussian; `colours` holds `3·(d+1)²` harmonic coefficients per
+/// Gaussian, coefficient-major (`k₀ r g b, k₁ r g b, …`).
+#[derive(Debug, Clone, Copy)]
+pub struct SplatCloud<'a> {
+    pub means: &'a [[f32; 3]],
+    pub log_scales: &'a [[f32; 3]],
+    pub rotations: &'a [[f32; 4]],
+    pub opacity_logits: &'a [f32],
+    pub colours: &'a [f32],
+    pub sh_degree: usize,
+}
+
+impl SplatCloud<'_> {
+    /// Harmonic coefficients per channel, `(d+1)²`.
+    fn coefficients(&self) -> usize {
+        (self.sh_degree + 1).pow(2)
+    }
+
+    fn validate(&self) -> Result<(), EvalError> {
+        let n = self.means.len();
+        let invalid = |detail: String| EvalError::InvalidInput {
+            what: "Gaussian cloud",
+            detail,
+        };
+        if [
+            self.log_scales.len(),
+            self.rotations.len(),
+            self.opacity_logits.len(),
+        ] != [n; 3]
+            || self.colours.len() != n * 3 * self.coefficients()
+        {
+            return Err(invalid(format!(
+                "{n} means but {} scales, {} rotations, {} opacities, {} colour values (expected {} per \
+                 Gaussian for degree {})",
+                self.log_scales.len(),
+                self.rotations.len(),
+                self.opacity_logits.len(),
+                self.colours.len(),
+                3 * self.coefficients(),
+                self.sh_degree
+            )));
+        }
+        let all = self
+            .means
+            .iter()
+            .chain(self.log_scales)
+            .flatten()
+            .chain(self.rotations.iter().flatten())
+            .chain(self.opacity_logits)
+            .chain(self.colours);
+        if all.clone().any(|v| !v.is_finite()) {
+            return Err(invalid("a value is not finite".into()));
+        }
+        Ok(())
+    }
+}
+
+/// The property names, in file order, for harmonics of `sh_degree`.
+pub fn property_names(sh_degree: usize) -> Vec<String> {
+    let rest = 3 * ((sh_degree + 1).pow(2) - 1);
+    let mut names: Vec<String> = [
+        "x", "y", "z", "nx", "ny", "nz", "f_dc_0", "f_dc_1", "f_dc_2",
+    ]
+    .map(String::from)
+    .to_vec();
+    names.extend((0..rest).map(|i| format!("f_rest_{i}")));
+    names.push("opacity".into());
+    names.extend((0..3).map(|i| format!("scale_{i}")));
+    names.extend((0..4).map(|i| format!("rot_{i}")));
+    names
+}
+
+/// Writes `cloud` to `path` (atomically).
+pub fn write_splat_ply(path: &Path, cloud: &SplatCloud) -> Result<(), EvalError> {
+    cloud.validate()?;
+    let names = property_names(cloud.sh_degree);
+    let mut header = format!(
+        "ply\nformat binary_little_endian 1.0\ncomment written by anerf\nelement vertex {}\n",
+        cloud.means.len()
+    );
+    for name in &names {
+        header += &format!("property float {name}\n");
+    }
+    header += "end_header\n";
+    let k = cloud.coefficients();
+    let mut bytes = header.into_bytes();
+    bytes.reserve(cloud.means.len() * names.len() * 4);
+    for i in 0..cloud.means.len() {
+        let coefficients = &cloud.colours[i * 3 * k..(i + 1) * 3 * k];
+        let mut row: Vec<f32> = cloud.means[i].to_vec();
+        row.extend([0.0; 3]);
+        row.extend(&coefficients[..3]);
+        for channel in 0..3 {
+            row.extend((1..k).map(|c| coefficients[3 * c + channel]));
+        }
+        row.push(cloud.opacity_logits[i]);
+        row.extend(cloud.log_scales[i]);
+        row.extend(cloud.rotations[i]);
+        for v in row {
+            bytes.extend_from_slice(&v.to_le_bytes());
+        }
+    }
+    write_with(path, |w| {
+        w.write_all(&bytes).map_err(|source| EvalError::Io {
+            path: path.to_path_buf(),
+            source,
+        })
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// An independent reader of the layout: the header's property names and the float rows.
+    fn read(path: &Path) -> (Vec<String>, usize, Vec<f32>) {
+        let bytes = std::fs::read(path).unwrap();
+        let end = b"end_header\n";
+        let at = bytes.windows(end.len()).position(|w| w == end).unwrap() + end.len();
+        let header = std::str::from_utf8(&bytes[..at]).unwrap();
+        let mut names = Vec::new();
+        let mut count = 0;
+        for line in header.lines() {
+            let words: Vec<&str> = line.split_whitespace().collect();
+            match words.as_slice() {
+                ["format", f, "1.0"] => assert_eq!(*f, "binary_little_endian"),
+                ["element", "vertex", n] => count = n.parse().unwrap(),
+                ["property", "float", name] => names.push(name.to_string()),
+                _ => {}
+            }
+        }
+        let values = bytes[at..]
+            .chunks_exact(4)
+            .map(|c| f32::from_le_bytes(c.try_into().unwrap()))
+            .collect();
+        (names, count, values)
+    }
+
+    #[test]
+    fn rows_hold_3dgs_properties_with_the_higher_harmonics_channel_by_channel() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("a.ply");
+        let means = [[0.1, 0.2, 0.3], [-1.0, 2.0, 0.5]];
+        let log_scales = [[-4.0, -4.5, -6.0], [-3.0, -3.5, -5.0]];
+        let rotations = [[1.0, 0.0, 0.0, 0.0], [0.5, 0.5, 0.5, 0.5]];
+        let opacity_logits = [2.0, -1.0];
+        // Coefficient-major: k0 (r g b), k1 (r g b), k2, k3, with value 10·k + channel (+100 for the second).
+        let colours: Vec<f32> = (0..2)
+            .flat_map(|i| {
+                (0..4).flat_map(move |k| (0..3).map(move |c| (100 * i + 10 * k + c) as f32))
+            })
+            .collect();
+        let cloud = SplatCloud {
+            means: &means,
+            log_scales: &log_scales,
+            rotations: &rotations,
+            opacity_logits: &opacity_logits,
+            colours: &colours,
+            sh_degree: 1,
+        };
+        write_splat_ply(&path, &cloud).unwrap();
+        let (names, count, values) = read(&path);
+        assert_eq!(count, 2);
+        assert_eq!(names.len(), 6 + 3 + 9 + 1 + 3 + 4);
+        assert_eq!(values.len(), 2 * names.len());
+        let row = |i: usize, name: &str| {
+            values[i * names.len() + names.iter().position(|n| n == name).unwrap()]
+        };
+        for i in 0..2 {
+            let base = 100.0 * i as f32;
+            assert_eq!([row(i, "x"), row(i, "y"), row(i, "z")], means[i]);
+            assert_eq!([row(i, "nx"), row(i, "ny"), row(i, "nz")], [0.0; 3]);
+            assert_eq!(
+                [row(i, "f_dc_0"), row(i, "f_dc_1"), row(i, "f_dc_2")],
+                [base, base + 1.0, base + 2.0]
+            );
+            // f_rest: red k1..k3, green k1..k3, blue k1..k3.
+            for channel in 0..3 {
+                for k in 1..4 {
+                    let name = format!("f_rest_{}", channel * 3 + k - 1);
+                    assert_eq!(row(i, &name), base + (10 * k + channel) as f32, "{name}");
+                }
+            }
+            assert_eq!(row(i, "opacity"), opacity_logits[i]);
+            assert_eq!(
+                [row(i, "scale_0"), row(i, "scale_1"), row(i, "scale_2")],
+                log_scales[i]
+            );
+            assert_eq!(
+                [
+                    row(i, "rot_0"),
+                    row(i, "rot_1"),
+                    row(i, "rot_2"),
+                    row(i, "rot_3")
+                ],
+                rotations[i]
+            );
+        }
+        let short = SplatCloud {
+            opacity_logits: &opacity_logits[..1],
+            ..cloud
+        };
+        assert!(write_splat_ply(&dir.path().join("b.ply"), &short).is_err());
+        assert!(!dir.path().join("b.ply").exists());
+    }
+}
