@@ -105,11 +105,22 @@ fn an_amass_file_of_the_runs_novel_poses_renders_as_those_dataset_frames() {
         dir.path(),
         &["model.neural_blend_weights=false", "train.iterations=8"],
     );
-    anerf_run::render(&run, RenderJob::NovelPoses { view: 1 }, &quiet()).unwrap();
+    anerf_run::render(
+        &run,
+        RenderJob::NovelPoses { view: 1 },
+        anerf_run::Avatar::Nerf,
+        &quiet(),
+    )
+    .unwrap();
     let motion = amass_of_novel_frames(dir.path());
-    let gif = anerf_run::render(&run, motion_job(&motion, 1), &quiet())
-        .unwrap()
-        .gif;
+    let gif = anerf_run::render(
+        &run,
+        motion_job(&motion, 1),
+        anerf_run::Avatar::Nerf,
+        &quiet(),
+    )
+    .unwrap()
+    .gif;
     assert!(gif.ends_with("renders/motion_novel_view01.gif"), "{gif:?}");
     let dataset = pngs(&run.join("renders/novel_poses_view01"));
     let posed = pngs(&run.join("renders/motion_novel_view01"));
@@ -152,7 +163,13 @@ fn render_motion_matches_the_novel_pose_evaluation_within_half_a_db() {
     };
     assert!(!views.is_empty());
     for view in views {
-        anerf_run::render(&run, motion_job(&motion, view), &quiet()).unwrap();
+        anerf_run::render(
+            &run,
+            motion_job(&motion, view),
+            anerf_run::Avatar::Nerf,
+            &quiet(),
+        )
+        .unwrap();
         let renders = pngs(&run.join(format!("renders/motion_novel_view{view:02}")));
         let ours: Vec<f64> = records
             .iter()
@@ -434,7 +451,13 @@ fn a_bad_motion_leaves_the_run_untouched() {
         (fixture("motion/bad/object.npz"), "pickled objects"),
     ];
     for (path, wanted) in cases {
-        let err = anerf_run::render(&run, motion_job(&path, 1), &quiet()).unwrap_err();
+        let err = anerf_run::render(
+            &run,
+            motion_job(&path, 1),
+            anerf_run::Avatar::Nerf,
+            &quiet(),
+        )
+        .unwrap_err();
         let text = format!("{err:#}");
         let file = path.file_name().unwrap().to_string_lossy();
         assert!(
@@ -452,7 +475,10 @@ fn a_bad_motion_leaves_the_run_untouched() {
         camera: MotionCamera::View(Some(1)),
         size: None,
     };
-    let text = format!("{:#}", anerf_run::render(&run, far, &quiet()).unwrap_err());
+    let text = format!(
+        "{:#}",
+        anerf_run::render(&run, far, anerf_run::Avatar::Nerf, &quiet()).unwrap_err()
+    );
     assert!(text.contains("outside the motion's 4 frames"), "{text}");
     let placed = RenderJob::Motion {
         request: MotionRequest {
@@ -465,7 +491,7 @@ fn a_bad_motion_leaves_the_run_untouched() {
     };
     let text = format!(
         "{:#}",
-        anerf_run::render(&run, placed, &quiet()).unwrap_err()
+        anerf_run::render(&run, placed, anerf_run::Avatar::Nerf, &quiet()).unwrap_err()
     );
     assert!(text.contains("--place floor"), "{text}");
     assert_eq!(pngs(&run), before, "nothing was added to the run folder");
@@ -564,7 +590,9 @@ fn an_orbit_renders_the_requested_views_and_size() {
         views: 3,
         size: Some(24),
     };
-    let gif = anerf_run::render(&run, job, &quiet()).unwrap().gif;
+    let gif = anerf_run::render(&run, job, anerf_run::Avatar::Nerf, &quiet())
+        .unwrap()
+        .gif;
     assert!(gif.ends_with("renders/orbit_frame000002.gif") && gif.is_file());
     let dir = run.join("renders/orbit_frame000002");
     let frames: Vec<_> = (0..3)
@@ -593,4 +621,49 @@ fn an_orbit_renders_the_requested_views_and_size() {
         psnr > 45.0,
         "{psnr:.1} dB (8-bit PNG against the float render)"
     );
+}
+
+/// The baked avatar plays the run's own novel poses, written as an AMASS file, as it renders those
+/// dataset frames: reading, the root conversion, posing and camera agree, and neither needs stage 2.
+#[test]
+fn the_baked_avatar_plays_the_runs_novel_poses_as_a_motion_without_stage_2() {
+    let dir = tempfile::tempdir().unwrap();
+    let run = trained(&tiny(dir.path(), &["train.iterations=8"]), dir.path());
+    let job = anerf_run::bake::BakeJob {
+        surface: anerf_run::mesh::MeshJob {
+            voxel: 0.02,
+            level: 0.0,
+            smooth: 0,
+            frames: Vec::new(),
+            posed_frames: Vec::new(),
+            carve: true,
+        },
+        budget: 2_000,
+        sh_degree: 1,
+        iterations: 10,
+        overwrite: false,
+    };
+    anerf_run::bake::bake(&run, &job, &quiet()).unwrap();
+    let baked = anerf_run::Avatar::Baked;
+    let dataset =
+        anerf_run::render(&run, RenderJob::NovelPoses { view: 1 }, baked, &quiet()).unwrap();
+    assert!(dataset.dir.ends_with("renders/baked_novel_poses_view01"));
+    let motion = amass_of_novel_frames(dir.path());
+    let played = anerf_run::render(&run, motion_job(&motion, 1), baked, &quiet()).unwrap();
+    assert!(
+        played.dir.ends_with("renders/baked_motion_novel_view01"),
+        "{:?}",
+        played.dir
+    );
+    let (dataset, posed) = (pngs(&dataset.dir), pngs(&played.dir));
+    assert_eq!((dataset.len(), posed.len()), (4, 4));
+    for (a, b) in dataset.iter().zip(&posed) {
+        let (a, b) = (read_rgb(a).unwrap(), read_rgb(b).unwrap());
+        // The dataset render is cut to the body's box; the motion shows every Gaussian.
+        let covered = anerf_eval::PixelMask::from_fn(a.size(), |x, y| {
+            a.get_pixel(x, y).0.iter().any(|&c| c > 0.0)
+        });
+        let psnr = ImageMetrics::compute(&b, &a, Some(&covered)).unwrap().psnr;
+        assert!(psnr > 40.0, "{psnr:.1} dB against the dataset frame");
+    }
 }

@@ -128,7 +128,7 @@ pub fn demo(
         views: 24,
         size: None,
     };
-    let turntable = render(&run, job, options)?;
+    let turntable = render(&run, job, crate::Avatar::Nerf, options)?;
     report(DemoEvent::Rendered(&turntable));
     timed("turntable render", t);
     times.push(("total", started.elapsed()));

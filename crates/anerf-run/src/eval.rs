@@ -7,9 +7,9 @@ use anerf_core::named::Named;
 use anerf_core::FrameId;
 use anerf_eval::report::{EvalRecorder, EvalSplit, Summary};
 use anerf_eval::silhouette::Silhouettes;
-use anyhow::{bail, Context, Result};
+use anyhow::{bail, Result};
 
-use crate::bake::{self, BakedAvatar, DeviceAvatar};
+use crate::bake::{self, DeviceAvatar};
 use crate::memory::Work;
 use crate::{device, load_trained, open_run, JobOptions};
 use anerf_train::experiment::Experiment;
@@ -46,15 +46,7 @@ pub fn eval(
     let model = load_trained(&run, &config, &device)?;
     let baked = match avatar {
         Avatar::Nerf => None,
-        Avatar::Baked => {
-            let avatar = BakedAvatar::load(&run.baked()).with_context(|| {
-                format!(
-                    "the baked avatar of {} (`anerf bake` makes it)",
-                    run.root.display()
-                )
-            })?;
-            Some(DeviceAvatar::new(&avatar, &device))
-        }
+        Avatar::Baked => Some(DeviceAvatar::new(&bake::load_baked(&run)?, &device)),
     };
     let mut exp = Experiment::open(config, device, options.progress)?;
     let frames: Vec<FrameId> = match split {

@@ -7,9 +7,11 @@ use anerf_core::FrameId;
 use anerf_eval::images::{write_gif, write_mp4, write_png, PngDepth, VideoOutcome};
 use anyhow::{bail, Context, Result};
 
+use crate::bake::{self, DeviceAvatar};
 use crate::memory::Work;
 use crate::motion::MotionRequest;
 use crate::motion::{render_motion, MotionCamera, MotionFrames};
+use crate::Avatar;
 use crate::{device, load_trained, open_run, JobOptions};
 use anerf_train::experiment::Experiment;
 use anerf_train::render::render_view;
@@ -58,30 +60,48 @@ pub struct Rendered {
     pub frames: usize,
 }
 
-/// Renders `job`: PNG frames, an animated GIF and (with ffmpeg on PATH) an MP4 under `<run>/renders/`.
-pub fn render(run_path: &Path, job: RenderJob, options: &JobOptions) -> Result<Rendered> {
+/// Renders `job` with `avatar`: PNG frames, an animated GIF and (with ffmpeg on PATH) an MP4 under
+/// `<run>/renders/` (the baked avatar's names start with `baked_`). The baked avatar plays novel poses and
+/// motions without a stage-2 field.
+pub fn render(
+    run_path: &Path,
+    job: RenderJob,
+    avatar: Avatar,
+    options: &JobOptions,
+) -> Result<Rendered> {
     let (run, config) = open_run(run_path, options, Work::Render)?;
-    let (name, frames, fps) = match job {
-        RenderJob::Motion {
-            request,
-            camera,
-            size,
-        } => {
+    let (name, frames, fps) = match (job, avatar) {
+        (
+            RenderJob::Motion {
+                request,
+                camera,
+                size,
+            },
+            Avatar::Nerf,
+        ) => {
             let m = render_motion(&run, config, &request, camera, size, options)?;
             report_motion(&m);
             (m.name, m.images, m.fps)
         }
-        RenderJob::Orbit { frame, views, size } => {
-            let (model, mut exp) = open_model(&run, config, options)?;
-            let (name, shots) = orbit_shots(&exp, &model, frame, views, size)?;
-            let frames = render_dataset_shots(&model, &mut exp, &shots, options)?;
-            (name, frames, 12.0)
+        (
+            RenderJob::Motion {
+                request,
+                camera,
+                size,
+            },
+            Avatar::Baked,
+        ) => bake::render_motion(&run, config, &request, camera, size, options)?,
+        (RenderJob::Orbit { frame, views, size }, avatar) => {
+            let (model, mut exp, baked) = open_model(&run, config, avatar, options)?;
+            let (name, shots) = orbit_shots(&exp, &model, baked.is_some(), frame, views, size)?;
+            let frames = render_dataset_shots(&model, &mut exp, baked.as_ref(), &shots, options)?;
+            (prefixed(name, &baked), frames, 12.0)
         }
-        RenderJob::NovelPoses { view } => {
-            let (model, mut exp) = open_model(&run, config, options)?;
-            let (name, shots) = novel_pose_shots(&exp, &model, &run, view)?;
-            let frames = render_dataset_shots(&model, &mut exp, &shots, options)?;
-            (name, frames, 12.0)
+        (RenderJob::NovelPoses { view }, avatar) => {
+            let (model, mut exp, baked) = open_model(&run, config, avatar, options)?;
+            let (name, shots) = novel_pose_shots(&exp, &model, &run, baked.is_some(), view)?;
+            let frames = render_dataset_shots(&model, &mut exp, baked.as_ref(), &shots, options)?;
+            (prefixed(name, &baked), frames, 12.0)
         }
     };
     let dir = run.renders().join(&name);
@@ -103,15 +123,32 @@ pub fn render(run_path: &Path, job: RenderJob, options: &JobOptions) -> Result<R
     })
 }
 
-/// The run's trained model and its experiment.
+/// The run's trained model, its experiment and, for [`Avatar::Baked`], its baked avatar.
 fn open_model(
     run: &RunDir,
     config: anerf_train::config::ExperimentConfig,
+    avatar: Avatar,
     options: &JobOptions,
-) -> Result<(AnimatableNerf, Experiment)> {
+) -> Result<(AnimatableNerf, Experiment, Option<DeviceAvatar>)> {
     let device = device(&config, options)?;
     let model = load_trained(run, &config, &device)?;
-    Ok((model, Experiment::open(config, device, options.progress)?))
+    let baked = match avatar {
+        Avatar::Nerf => None,
+        Avatar::Baked => Some(DeviceAvatar::new(&bake::load_baked(run)?, &device)),
+    };
+    Ok((
+        model,
+        Experiment::open(config, device, options.progress)?,
+        baked,
+    ))
+}
+
+/// A render's output name, `baked_` first for the baked avatar's.
+fn prefixed(name: String, baked: &Option<DeviceAvatar>) -> String {
+    match baked {
+        Some(_) => format!("baked_{name}"),
+        None => name,
+    }
 }
 
 /// Prints what a motion render cost, per frame.
@@ -139,17 +176,22 @@ fn report_motion(m: &MotionFrames) {
 /// A dataset frame seen by a camera.
 type DatasetShot = (FrameId, anerf_core::geometry::Camera);
 
-/// Renders dataset frames from cameras (no ground truth).
+/// Renders dataset frames from cameras (no ground truth), with the NeRF or the `baked` avatar.
 fn render_dataset_shots(
     model: &AnimatableNerf,
     exp: &mut Experiment,
+    baked: Option<&DeviceAvatar>,
     shots: &[DatasetShot],
     options: &JobOptions,
 ) -> Result<Vec<image::Rgb32FImage>> {
     let bar = options.bar("render", shots.len());
     let mut frames = Vec::with_capacity(shots.len());
     for (frame, camera) in shots {
-        frames.push(render_view(model, exp, *frame, camera, None)?.prediction);
+        let image = match baked {
+            Some(avatar) => bake::render_view(avatar, model, exp, *frame, camera, None)?,
+            None => render_view(model, exp, *frame, camera, None)?,
+        };
+        frames.push(image.prediction);
         bar.set_step(frames.len());
     }
     bar.finish(frames.len(), "finished");
@@ -157,15 +199,21 @@ fn render_dataset_shots(
 }
 
 /// The output name and cameras of an orbit around dataset frame `frame` (default: the first training one).
+/// `baked`: the Gaussians render novel poses without a stage-2 field.
 fn orbit_shots(
     exp: &Experiment,
     model: &AnimatableNerf,
+    baked: bool,
     frame: Option<usize>,
     views: usize,
     size: Option<u32>,
 ) -> Result<(String, Vec<DatasetShot>)> {
     let frame = frame.map(FrameId).unwrap_or(exp.train_frames[0]);
-    exp.check_renderable(frame, model)?;
+    if baked {
+        exp.frame_code(frame)?;
+    } else {
+        exp.check_renderable(frame, model)?;
+    }
     let bounds = exp.frame_bounds(frame)?;
     let mut reference = exp.prepared.cameras[exp.train_views[0].0].clone();
     if let Some(s) = size {
@@ -185,9 +233,10 @@ fn novel_pose_shots(
     exp: &Experiment,
     model: &AnimatableNerf,
     run: &RunDir,
+    baked: bool,
     view: usize,
 ) -> Result<(String, Vec<DatasetShot>)> {
-    if model.novel_blend.is_none() {
+    if !baked && model.novel_blend.is_none() {
         bail!(
             "{} has no stage-2 checkpoint; run `anerf animate` first",
             run.root.display()

@@ -2,7 +2,7 @@
 
 use std::path::PathBuf;
 
-use anerf_run::{MotionCamera, RenderJob, Rendered};
+use anerf_run::{Avatar, MotionCamera, RenderJob, Rendered};
 use anyhow::Result;
 use clap::Args;
 
@@ -33,6 +33,10 @@ pub struct RenderArgs {
     /// Output image size (width = height) of an orbit or a motion; default: the dataset's.
     #[arg(long)]
     pub size: Option<u32>,
+    /// Render the Gaussians of `anerf bake` instead of the NeRF (novel poses and motions then need no
+    /// stage-2 field; names start with baked_).
+    #[arg(long)]
+    pub baked: bool,
     #[command(flatten)]
     pub common: Common,
 }
@@ -60,7 +64,12 @@ impl RenderArgs {
 }
 
 pub fn run(args: &RenderArgs) -> Result<Rendered> {
-    let rendered = anerf_run::render(&args.run, args.job(), &args.common.options())?;
+    let avatar = if args.baked {
+        Avatar::Baked
+    } else {
+        Avatar::Nerf
+    };
+    let rendered = anerf_run::render(&args.run, args.job(), avatar, &args.common.options())?;
     print(&rendered);
     Ok(rendered)
 }

@@ -69,12 +69,7 @@ pub fn export_splats(
             canonical_file.display()
         );
     }
-    let avatar = BakedAvatar::load(&run.baked()).with_context(|| {
-        format!(
-            "the baked avatar of {} (`anerf bake` makes it)",
-            run.root.display()
-        )
-    })?;
+    let avatar = super::load_baked(&run)?;
     let device = device(&config, options)?;
     let model = load_trained(&run, &config, &device)?;
     let exp = Experiment::open(config, device, options.progress)?;

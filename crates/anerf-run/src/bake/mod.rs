@@ -234,3 +234,78 @@ pub fn render_view(
         &shaded,
     ))
 }
+
+/// The avatar posed by `pose` (through `skeleton`'s bones) seen by `camera`, on black.
+pub fn render_pose(
+    avatar: &DeviceAvatar,
+    skeleton: &anerf_core::geometry::Skeleton,
+    pose: &Pose,
+    camera: &Camera,
+) -> Result<image::Rgb32FImage> {
+    let bones = skeleton.bone_transforms(pose, CanonicalPose::TPose)?;
+    let view = SplatView {
+        camera,
+        global: &pose.global,
+        convention: PixelConvention::Integer,
+    };
+    let device = avatar.skin.device();
+    let pixels = to_host(render(
+        &avatar.cloud,
+        avatar.skin.clone(),
+        &BoneMatrices::new(&bones, &device),
+        &view,
+    ));
+    let rgb: Vec<f32> = pixels
+        .chunks_exact(4)
+        .flat_map(|p| [p[0], p[1], p[2]])
+        .collect();
+    image::Rgb32FImage::from_raw(camera.width, camera.height, rgb)
+        .context("an image of the camera's size")
+}
+
+/// `request`'s motion played by the run's baked avatar: no stage-2 fit, the Gaussians carry their skin.
+/// Returns the output name, the images and their frame rate.
+pub(crate) fn render_motion(
+    run: &anerf_train::run_dir::RunDir,
+    config: anerf_train::config::ExperimentConfig,
+    request: &crate::motion::MotionRequest,
+    camera: crate::motion::MotionCamera,
+    size: Option<u32>,
+    options: &JobOptions,
+) -> Result<(String, Vec<image::Rgb32FImage>, f64)> {
+    let device = device(&config, options)?;
+    let avatar = DeviceAvatar::new(&load_baked(run)?, &device);
+    let exp = Experiment::open(config, device, options.progress)?;
+    let seen = crate::motion::MotionView::new(&exp, camera, size)?;
+    let clip = crate::motion::MotionClip::new(request, &exp, seen.view)?;
+    let skeleton = &exp.prepared.skeleton;
+    let n = clip.poses.len();
+    let bar = options.bar("render", n);
+    let mut images = Vec::with_capacity(n);
+    for (i, pose) in clip.poses.iter().enumerate() {
+        let bones = skeleton.bone_transforms(pose, CanonicalPose::TPose)?;
+        let joints: Vec<glam::Vec3> = skeleton
+            .rest_joints()
+            .iter()
+            .zip(bones.matrices())
+            .map(|(j, a)| pose.global.pose_to_world(a.transform_point3(*j)))
+            .collect();
+        let center = joints.iter().sum::<glam::Vec3>() / joints.len().max(1) as f32;
+        let image = render_pose(&avatar, skeleton, pose, &seen.camera(i, n, center))
+            .with_context(|| format!("rendering frame {i} of motion {}", clip.name))?;
+        images.push(image);
+        bar.set_step(i + 1);
+    }
+    bar.finish(n, "finished");
+    Ok((format!("baked_{}", seen.name(&clip.name)), images, clip.fps))
+}
+
+/// The run's baked avatar, read and checked.
+pub fn load_baked(run: &anerf_train::run_dir::RunDir) -> Result<BakedAvatar> {
+    BakedAvatar::load(&run.baked()).with_context(|| {
+        format!(
+            "the baked avatar of {} (`anerf bake` makes it)",
+            run.root.display()
+        )
+    })
+}

@@ -46,7 +46,7 @@ pub fn animate_motion(
     let device = device(&config, options)?.autodiff();
     let (model, checkpoint) = stage1(&run, &config, &device)?;
     let exp = Experiment::open(config, device.clone(), options.progress)?;
-    let view = render_view(&exp, view)?;
+    let view = MotionView::new(&exp, MotionCamera::View(view), None)?.view;
     let clip = MotionClip::new(request, &exp, view)?;
     fit_clip(&run, &exp, model, &clip, request, &checkpoint, options)
 }
@@ -118,11 +118,8 @@ pub(crate) fn render_motion(
     let device = device(&config, options)?;
     let (model, checkpoint) = stage1(run, &config, &device)?;
     let exp = Experiment::open(config.clone(), device.clone(), options.progress)?;
-    let view = match camera {
-        MotionCamera::View(v) => render_view(&exp, v)?,
-        MotionCamera::Orbit => exp.train_views[0],
-    };
-    let clip = MotionClip::new(request, &exp, view)?;
+    let seen = MotionView::new(&exp, camera, size)?;
+    let clip = MotionClip::new(request, &exp, seen.view)?;
     let stored = StoredFit::new(&run.motions(), &clip);
     let (model, fit) = match stored.load(&clip, &checkpoint, model.clone(), &device)? {
         Some(m) => (
@@ -155,23 +152,12 @@ pub(crate) fn render_motion(
         }
     };
     let start = Instant::now();
-    let mut reference = exp.prepared.cameras[view.0].clone();
-    if let Some(s) = size {
-        reference = reference.resized(s as f32 / reference.width as f32);
-    }
-    let up = anerf_core::geometry::mean_up(&exp.prepared.cameras);
     let n = clip.poses.len();
     let bar = options.bar("render", n);
     let mut images = Vec::with_capacity(n);
     for i in 0..n {
         let target = clip.target(&exp, i, &device)?;
-        let camera = match camera {
-            MotionCamera::View(_) => reference.clone(),
-            MotionCamera::Orbit => {
-                let center = (target.bounds.min + target.bounds.max) * 0.5;
-                anerf_core::geometry::orbit_camera(&reference, center, up, i as f32 / n as f32)
-            }
-        };
+        let camera = seen.camera(i, n, (target.bounds.min + target.bounds.max) * 0.5);
         let shot = Shot {
             inputs: &target.inputs,
             bounds: target.bounds,
@@ -187,12 +173,8 @@ pub(crate) fn render_motion(
         }
     }
     bar.finish(n, "finished");
-    let suffix = match camera {
-        MotionCamera::View(_) => format!("view{:02}", view.0),
-        MotionCamera::Orbit => "orbit".into(),
-    };
     Ok(MotionFrames {
-        name: format!("motion_{}_{suffix}", clip.name),
+        name: seen.name(&clip.name),
         fps: clip.fps,
         images,
         fit,
@@ -200,16 +182,69 @@ pub(crate) fn render_motion(
     })
 }
 
-/// The dataset camera `view` (default: the first training view), checked.
-fn render_view(exp: &Experiment, view: Option<usize>) -> Result<ViewId> {
-    let view = view.unwrap_or(exp.train_views[0].0);
-    if view >= exp.prepared.cameras.len() {
-        anyhow::bail!(
-            "view {view} does not exist (the dataset has {} cameras)",
-            exp.prepared.cameras.len()
-        );
+/// Where a motion's images are seen from: a dataset camera at the output size, fixed or circling the body
+/// once over the clip.
+pub struct MotionView {
+    kind: MotionCamera,
+    /// The dataset view the camera starts from (and the body faces by default).
+    pub view: ViewId,
+    reference: anerf_core::geometry::Camera,
+    /// The world's up (the cameras' mean), the axis an orbit turns about.
+    up: glam::Vec3,
+}
+
+impl MotionView {
+    /// `kind`'s camera in `exp` (a view must exist; the orbit starts at the first training view), resized to
+    /// `size` pixels wide.
+    pub(crate) fn new(exp: &Experiment, kind: MotionCamera, size: Option<u32>) -> Result<Self> {
+        let view = match kind {
+            MotionCamera::View(v) => v.unwrap_or(exp.train_views[0].0),
+            MotionCamera::Orbit => exp.train_views[0].0,
+        };
+        let Some(camera) = exp.prepared.cameras.get(view) else {
+            anyhow::bail!(
+                "view {view} does not exist (the dataset has {} cameras)",
+                exp.prepared.cameras.len()
+            );
+        };
+        let reference = match size {
+            Some(s) => camera.resized(s as f32 / camera.width as f32),
+            None => camera.clone(),
+        };
+        Ok(Self {
+            kind,
+            view: ViewId(view),
+            reference,
+            up: anerf_core::geometry::mean_up(&exp.prepared.cameras),
+        })
     }
-    Ok(ViewId(view))
+
+    /// The camera of image `i` of `n`, the body's centre at `center` (world, metres).
+    pub(crate) fn camera(
+        &self,
+        i: usize,
+        n: usize,
+        center: glam::Vec3,
+    ) -> anerf_core::geometry::Camera {
+        match self.kind {
+            MotionCamera::View(_) => self.reference.clone(),
+            MotionCamera::Orbit => anerf_core::geometry::orbit_camera(
+                &self.reference,
+                center,
+                self.up,
+                i as f32 / n as f32,
+            ),
+        }
+    }
+
+    /// The output name of clip `clip`'s images from this camera.
+    pub(crate) fn name(&self, clip: &str) -> String {
+        let suffix = match self.kind {
+            MotionCamera::View(_) => format!("view{:02}", self.view.0),
+            MotionCamera::Orbit => "orbit".into(),
+        };
+        format!("motion_{clip}_{suffix}")
+    }
 }
 
 /// The run's newest intact stage-1 model and its checkpoint's name.
