@@ -1,11 +1,12 @@
 #!/usr/bin/env bash
 # The viewer's browser test (run by .ci/run): serves a run with `anerf view` and checks the page in
-# headless Chromium (scripts/view/browser_check.cjs): the avatar drawn in the 3D view, the curves and an
-# evaluation image loaded, the view filter, no console error. Without --run it trains, animates,
+# headless Chromium (scripts/view/browser_check.cjs): the avatar drawn in the 3D view, the baked Gaussians
+# drawn from an orbit and from a dataset camera, the curves and an evaluation image loaded, the view filter, no console error. Without --run it trains, animates,
 # evaluates and exports a tiny synthetic run first (about 15 s in the dev profile).
 #
 # usage: scripts/view/browser_test.sh [--run DIR] [--screenshot FILE]
-#   --run DIR         an evaluated, exported run (the README's picture: the demo's run)
+#   --run DIR         an evaluated, exported (glb and ply) run whose baked avatar is evaluated on the
+#                     training views (the README's picture: the demo's run)
 #   --screenshot FILE where the screenshot goes (default: target/view/screenshot.png)
 # ANERF names the binary (default: target/debug/anerf, built when missing); CHROMIUM the browser
 # (default /usr/bin/chromium: Debian's `chromium` package).
@@ -54,6 +55,10 @@ if [ -z "$run" ]; then
     step "$anerf" eval "$run" --quiet
     # The tiny run's density is low after 200 steps: a low iso level still finds its surface.
     step "$anerf" export "$run" --level 1 --voxel 0.02
+    # The baked avatar for the Gaussian view: a short fit of a few thousand Gaussians.
+    step "$anerf" bake "$run" --level 1 --voxel 0.02 --budget 4000 --iterations 60 --quiet
+    step "$anerf" export "$run" --format ply
+    step "$anerf" eval "$run" --baked --split training-view --quiet
 fi
 
 "$anerf" view "$run" --port 0 >"$work/view.log" 2>&1 &

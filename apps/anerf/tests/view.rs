@@ -171,6 +171,30 @@ fn the_server_answers_the_page_the_index_and_the_runs_files() {
             (status, header(&headers, "content-type"), &glb[..]),
             (200, "model/gltf-binary", &b"glTF-bytes"[..])
         );
+        // The baked avatar's Gaussians appear once all three files of a splat export are there.
+        assert!(index["splats"].is_null(), "{index:#}");
+        let splats = run.join("export/splats");
+        std::fs::create_dir_all(&splats).unwrap();
+        for name in ["avatar.ply", "skin.json"] {
+            std::fs::write(splats.join(name), name).unwrap();
+        }
+        let partial: serde_json::Value = serde_json::from_slice(&get(addr, "/api/run").1).unwrap();
+        assert!(partial["splats"].is_null(), "motion.json is missing");
+        std::fs::write(splats.join("motion.json"), "motion.json").unwrap();
+        let full: serde_json::Value = serde_json::from_slice(&get(addr, "/api/run").1).unwrap();
+        assert_ne!(full["version"], partial["version"]);
+        for (key, name) in [
+            ("ply", "avatar.ply"),
+            ("skin", "skin.json"),
+            ("motion", "motion.json"),
+        ] {
+            let url = full["splats"][key].as_str().unwrap();
+            assert!(
+                url.starts_with(&format!("/run/export/splats/{name}?v=")),
+                "{url}"
+            );
+            assert_eq!(send(addr, "GET", url).2, name.as_bytes());
+        }
         assert_eq!(index["videos"][0]["kind"], "gif");
         assert_eq!(
             index["curves"].as_array().unwrap().len(),

@@ -68,7 +68,38 @@ fn a_baked_avatar_fits_the_training_views_and_evaluates_on_every_split() {
         serde_json::from_slice(&std::fs::read(exported.dir.join("skin.json")).unwrap()).unwrap();
     assert_eq!(skin["joints"].as_array().unwrap().len(), exported.gaussians);
     assert_eq!(exported.frames, 6, "the tiny subject's training frames");
-    assert!(exported.dir.join("frames/frame_000005.ply").is_file());
+    // motion.json skins the canonical Gaussians on the GPU: the blend of a Gaussian's four joint matrices
+    // carries its canonical mean to where the posed file of that frame has it.
+    let motion: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(exported.dir.join("motion.json")).unwrap()).unwrap();
+    assert_eq!(motion["frames"].as_array().unwrap().len(), 6);
+    assert_eq!(
+        motion["cameras"].as_array().unwrap().len(),
+        4,
+        "the tiny subject's cameras"
+    );
+    let avatar = BakedAvatar::load(&run.join("baked")).unwrap();
+    let posed = ply_means(&exported.dir.join("frames/frame_000005.ply"));
+    assert_eq!(posed.len(), exported.gaussians);
+    let matrices = &motion["frames"][5];
+    for i in (0..exported.gaussians).step_by(97) {
+        let mut at = [0.0f64; 3];
+        for (&j, &w) in avatar.skin_joints[i].iter().zip(&avatar.skin_weights[i]) {
+            let m: Vec<f64> = floats(&matrices[j as usize]);
+            let x = avatar.means[i].map(f64::from);
+            for (r, a) in at.iter_mut().enumerate() {
+                // Column-major: element (r, c) at 4·c + r.
+                *a += w as f64 * (m[r] * x[0] + m[4 + r] * x[1] + m[8 + r] * x[2] + m[12 + r]);
+            }
+        }
+        for r in 0..3 {
+            assert!(
+                (at[r] - posed[i][r] as f64).abs() < 1e-4,
+                "Gaussian {i}: {at:?} vs {:?}",
+                posed[i]
+            );
+        }
+    }
     let err = format!("{:#}", export_splats(&run, &ply, &quiet()).unwrap_err());
     assert!(err.contains("--overwrite"), "{err}");
 
@@ -82,4 +113,35 @@ fn a_baked_avatar_fits_the_training_views_and_evaluates_on_every_split() {
     assert!(err.contains("cannot be baked"), "{err}");
     // The refused bakes left the avatar in place.
     assert!(BakedAvatar::load(&run.join("baked")).is_ok());
+}
+
+fn floats(v: &serde_json::Value) -> Vec<f64> {
+    v.as_array()
+        .unwrap()
+        .iter()
+        .map(|x| x.as_f64().unwrap())
+        .collect()
+}
+
+/// The first three properties (x, y, z) of every row of a binary little-endian PLY of float properties.
+fn ply_means(path: &std::path::Path) -> Vec<[f32; 3]> {
+    let bytes = std::fs::read(path).unwrap();
+    let end = b"end_header\n";
+    let body = bytes.windows(end.len()).position(|w| w == end).unwrap() + end.len();
+    let header = std::str::from_utf8(&bytes[..body]).unwrap();
+    assert!(
+        header.contains("format binary_little_endian 1.0"),
+        "{header}"
+    );
+    let properties = header
+        .lines()
+        .filter(|l| l.starts_with("property float "))
+        .count();
+    bytes[body..]
+        .chunks_exact(4 * properties)
+        .map(|row| {
+            let f = |k: usize| f32::from_le_bytes(row[4 * k..4 * k + 4].try_into().unwrap());
+            [f(0), f(1), f(2)]
+        })
+        .collect()
 }

@@ -5,6 +5,8 @@ const ASSETS: &[(&str, &[u8])] = &[
     ("index.html", include_bytes!("assets/index.html")),
     ("app.js", include_bytes!("assets/app.js")),
     ("glb_view.js", include_bytes!("assets/glb_view.js")),
+    ("splat_view.js", include_bytes!("assets/splat_view.js")),
+    ("view3d.js", include_bytes!("assets/view3d.js")),
     ("style.css", include_bytes!("assets/style.css")),
 ];
 

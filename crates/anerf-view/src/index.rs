@@ -45,6 +45,37 @@ pub struct RunIndex {
     pub videos: Vec<Video>,
     /// Exported `.glb` files.
     pub avatars: Vec<String>,
+    /// The baked avatar exported as Gaussians (`anerf export --format ply`), if it is.
+    pub splats: Option<SplatFiles>,
+}
+
+/// The files of `<run>/export/splats/` a splat viewer that skins reads.
+#[derive(Debug, Serialize)]
+pub struct SplatFiles {
+    /// The canonical Gaussians, 3DGS's PLY layout.
+    pub ply: String,
+    /// Each Gaussian's four joints and weights.
+    pub skin: String,
+    /// The frames' joint matrices and the dataset's cameras.
+    pub motion: String,
+}
+
+impl SplatFiles {
+    /// The splat export of `run`, when all three files are there.
+    fn read(run: &RunDir, stamps: &mut Stamps) -> Option<Self> {
+        let dir = run.exports().join("splats");
+        let mut url = |name: &str| {
+            let path = dir.join(name);
+            inside_run(run, &path).ok()?;
+            stamps.add(&path);
+            Some(file_url(run, &path))
+        };
+        Some(Self {
+            ply: url("avatar.ply")?,
+            skin: url("skin.json")?,
+            motion: url("motion.json")?,
+        })
+    }
 }
 
 /// One evaluation split (`<run>/eval/<split>/`).
@@ -127,6 +158,7 @@ impl RunIndex {
             .iter()
             .map(|p| file_url(run, p))
             .collect();
+        let splats = SplatFiles::read(run, &mut stamps);
         Ok(Self {
             name,
             folder: run.root.display().to_string(),
@@ -138,6 +170,7 @@ impl RunIndex {
             evaluations,
             videos,
             avatars,
+            splats,
         })
     }
 }

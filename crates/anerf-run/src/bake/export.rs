@@ -1,11 +1,14 @@
 //! `anerf export --format ply`: the baked avatar in 3D Gaussian Splatting's PLY layout — the canonical
 //! Gaussians (`avatar.ply`) with their skin and skeleton beside them (`skin.json`), and the Gaussians posed
-//! at every frame of an animation (`frames/frame_<k>.ply`, world space) for viewers that do not skin.
+//! at every frame of an animation (`frames/frame_<k>.ply`, world space) for viewers that do not skin, and
+//! what a viewer that skins needs to play it (`motion.json`: the frames' joint matrices and the cameras).
 
 use std::path::{Path, PathBuf};
 
 use anerf_core::gaussians::sh;
-use anerf_core::geometry::{blend_transforms, BoneTransforms, CanonicalPose, GlobalTransform};
+use anerf_core::geometry::{
+    blend_transforms, mean_up, BoneTransforms, Camera, CanonicalPose, GlobalTransform,
+};
 use anerf_data::atomic::write_bytes;
 use anerf_eval::splat_ply::{write_splat_ply, SplatCloud};
 use anyhow::{bail, Context, Result};
@@ -51,6 +54,49 @@ struct SkinFile<'a> {
     parents: &'a [Option<usize>],
 }
 
+/// `motion.json`: what a viewer needs to skin `avatar.ply` on the GPU and see it as the dataset did.
+#[derive(Debug, Serialize)]
+struct SplatMotion {
+    fps: f64,
+    /// Per frame, per joint: canonical → world, the bone's transform then the frame's global one
+    /// (column-major 4×4, as WebGL takes matrices). A Gaussian's is the blend of its four joints'.
+    frames: Vec<Vec<[f32; 16]>>,
+    /// The dataset frame each animation frame is (the training motion's; empty for a motion file's).
+    dataset_frames: Vec<usize>,
+    cameras: Vec<ViewerCamera>,
+    /// The world's up (the cameras' mean), for an orbit.
+    up: [f32; 3],
+}
+
+/// A dataset camera as a viewer takes it: world → camera `x_cam = R x + T` (metres), `K` in pixels of a
+/// `width × height` image (rows), the first pixel's centre at (0, 0) (the images' lens distortion is left
+/// out).
+#[derive(Debug, Serialize)]
+struct ViewerCamera {
+    view: usize,
+    /// Whether the run trained on this view.
+    training: bool,
+    width: u32,
+    height: u32,
+    intrinsics: [[f32; 3]; 3],
+    rotation: [[f32; 3]; 3],
+    translation: [f32; 3],
+}
+
+impl ViewerCamera {
+    fn of(view: usize, training: bool, camera: &Camera) -> Self {
+        Self {
+            view,
+            training,
+            width: camera.width,
+            height: camera.height,
+            intrinsics: camera.intrinsics.transpose().to_cols_array_2d(),
+            rotation: camera.rotation.transpose().to_cols_array_2d(),
+            translation: camera.translation.to_array(),
+        }
+    }
+}
+
 /// Writes the baked avatar of the run at `run_path` as PLY files (see the module doc).
 pub fn export_splats(
     run_path: &Path,
@@ -93,6 +139,7 @@ pub fn export_splats(
         &dir.join("skin.json"),
         serde_json::to_string(&skin)?.as_bytes(),
     )?;
+    let mut frames = Vec::with_capacity(poses.len());
     for (k, pose) in poses.iter().enumerate() {
         let bones = skeleton.bone_transforms(pose, CanonicalPose::TPose)?;
         let posed = PosedSplats::of(&avatar, &bones, &pose.global)?;
@@ -101,7 +148,35 @@ pub fn export_splats(
             &file,
             &cloud_of(&avatar, &posed.means, &posed.rotations, &posed.colours),
         )?;
+        let world = pose.global.pose_to_world_matrix();
+        frames.push(
+            bones
+                .matrices()
+                .iter()
+                .map(|a| (world * *a).to_cols_array())
+                .collect(),
+        );
     }
+    let cameras = &exp.prepared.cameras;
+    let dataset_frames = match job.motion {
+        Some(_) => Vec::new(),
+        None => exp.train_frames.iter().map(|f| f.0).collect(),
+    };
+    let motion = SplatMotion {
+        fps,
+        frames,
+        dataset_frames,
+        cameras: cameras
+            .iter()
+            .enumerate()
+            .map(|(v, c)| ViewerCamera::of(v, exp.train_views.iter().any(|t| t.0 == v), c))
+            .collect(),
+        up: mean_up(cameras).to_array(),
+    };
+    write_bytes(
+        &dir.join("motion.json"),
+        serde_json::to_string(&motion)?.as_bytes(),
+    )?;
     Ok(SplatExported {
         dir,
         gaussians: avatar.means.len(),

@@ -2,6 +2,7 @@
 // training refreshes by itself. window.anerfView tells a test (or a curious user) what has been shown.
 
 import { GlbView } from './glb_view.js';
+import { SplatView } from './splat_view.js';
 
 const POLL_MS = 2000;
 const $ = (id) => document.getElementById(id);
@@ -15,7 +16,7 @@ const el = (tag, attrs = {}, children = []) => {
 };
 const fmt = (v, digits) => (v === null || v === undefined ? '–' : Number(v).toFixed(digits));
 
-const state = { version: null, index: null, avatar: null, view: null, shown: {} };
+const state = { version: null, index: null, avatar: null, view: null, splats: null, splatView: null, shown: {} };
 /** True when `data` differs from what section `name` shows now (file URLs carry their own stamps). */
 const changed = (name, data) => {
   const text = JSON.stringify(data);
@@ -23,7 +24,7 @@ const changed = (name, data) => {
   state.shown[name] = text;
   return true;
 };
-window.anerfView = { indexed: false, avatars: 0, avatarFrames: 0, error: null };
+window.anerfView = { indexed: false, avatars: 0, avatarFrames: 0, splats: false, splatFrames: 0, error: null };
 
 function showStatus(index) {
   $('run-name').textContent = index.name;
@@ -114,6 +115,40 @@ async function showAvatar(index) {
   $('avatar-note').textContent = 'Drag to orbit, wheel to zoom.';
 }
 
+/** The baked avatar's panel: its Gaussians, played and seen from an orbit or a dataset camera. */
+async function showSplats(index) {
+  const files = index.splats;
+  if (!files) {
+    $('splat-note').textContent = 'No baked avatar exported yet: anerf bake <run>, then anerf export <run> --format ply.';
+    return;
+  }
+  const key = JSON.stringify(files);
+  if (state.splats === key) return;
+  state.splats = key;
+  const times = [];
+  state.splatView ??= new SplatView($('splats'), (t, d) => {
+    const view = state.splatView;
+    window.anerfView.splatFrames = view.frames;
+    window.anerfView.splatShown = { camera: view.camera, time: t };
+    $('splat-clock').textContent = d > 0 ? `${t.toFixed(2)} / ${d.toFixed(2)} s` : 'one frame';
+    if (view.playing) $('splat-scrub').value = d > 0 ? String(Math.round((t / d) * 1000)) : '0';
+    times.push(performance.now());
+    if (times.length > 30) times.shift();
+    const fps = times.length > 1 ? (1000 * (times.length - 1)) / (times[times.length - 1] - times[0]) : 0;
+    $('splat-rate').textContent = `${fps.toFixed(0)} frames/s (sort and draw calls ${view.cpuMs.toFixed(1)} ms)`;
+  });
+  await state.splatView.load(files);
+  const cameras = state.splatView.scene.motion.cameras;
+  const select = $('splat-camera');
+  const keep = select.value;
+  select.replaceChildren(el('option', { value: '', text: 'orbit' }),
+    ...cameras.map((c, k) => el('option', { value: String(k), text: `view ${c.view}${c.training ? ' (training)' : ''}` })));
+  if (keep && Number(keep) < cameras.length) select.value = keep;
+  state.splatView.camera = select.value === '' ? null : Number(select.value);
+  window.anerfView.splats = true;
+  $('splat-note').textContent = `${state.splatView.scene.count} Gaussians, harmonics of degree ${state.splatView.scene.degree}. Drag to orbit, wheel to zoom.`;
+}
+
 async function poll() {
   try {
     const response = await fetch('/api/run', { cache: 'no-store' });
@@ -127,6 +162,7 @@ async function poll() {
       if (changed('videos', index.videos)) showVideos(index);
       $('config').textContent = index.config;
       await showAvatar(index);
+      await showSplats(index);
       window.anerfView.avatars = index.avatars.length;
       window.anerfView.indexed = true;
     }
@@ -138,16 +174,28 @@ async function poll() {
 }
 
 for (const id of ['filter-split', 'filter-view', 'filter-frame']) $(id).addEventListener('change', showImages);
-$('play').addEventListener('click', () => {
-  if (!state.view) return;
-  state.view.playing = !state.view.playing;
-  $('play').textContent = state.view.playing ? 'Pause' : 'Play';
-});
-$('scrub').addEventListener('input', (e) => {
-  if (!state.view) return;
-  state.view.playing = false; $('play').textContent = 'Play';
-  state.view.time = (Number(e.target.value) / 1000) * state.view.duration;
-  state.view.dirty = true;
+/** Wires a 3D view's play button and time slider; `current()` is the view once it exists. */
+function playControls(current, play, scrub) {
+  $(play).addEventListener('click', () => {
+    const view = current();
+    if (!view) return;
+    view.playing = !view.playing;
+    $(play).textContent = view.playing ? 'Pause' : 'Play';
+  });
+  $(scrub).addEventListener('input', (e) => {
+    const view = current();
+    if (!view) return;
+    view.playing = false; $(play).textContent = 'Play';
+    view.time = (Number(e.target.value) / 1000) * view.duration;
+    view.dirty = true;
+  });
+}
+playControls(() => state.view, 'play', 'scrub');
+playControls(() => state.splatView, 'splat-play', 'splat-scrub');
+$('splat-camera').addEventListener('change', (e) => {
+  if (!state.splatView) return;
+  state.splatView.camera = e.target.value === '' ? null : Number(e.target.value);
+  state.splatView.dirty = true;
 });
 $('avatar-file').addEventListener('change', () => { state.avatar = null; showAvatar(state.index); });
 poll();

@@ -4,6 +4,8 @@
 // Drag to orbit, wheel to zoom; the camera follows the root joint. Written for `anerf export`'s files, it
 // reads any glb that keeps to one skinned mesh with triangles.
 
+import { BACKGROUND, M, animate, compile, dot, fitCanvas, sub } from './view3d.js';
+
 const COMPONENTS = { SCALAR: 1, VEC2: 2, VEC3: 3, VEC4: 4, MAT4: 16 };
 const ARRAYS = {
   5120: Int8Array, 5121: Uint8Array, 5122: Int16Array,
@@ -47,43 +49,6 @@ function readAccessor(gltf, bin, index) {
   }
   return { data: out, size: n, acc };
 }
-
-// Column-major 4×4 matrices, as glTF and WebGL store them.
-const M = {
-  identity: () => new Float32Array([1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1]),
-  mul(a, b) {
-    const o = new Float32Array(16);
-    for (let c = 0; c < 4; c++) for (let r = 0; r < 4; r++) {
-      let s = 0;
-      for (let k = 0; k < 4; k++) s += a[k * 4 + r] * b[c * 4 + k];
-      o[c * 4 + r] = s;
-    }
-    return o;
-  },
-  fromTrs(t, q, s) {
-    const [x, y, z, w] = q;
-    const o = new Float32Array([
-      (1 - 2 * (y * y + z * z)) * s[0], 2 * (x * y + z * w) * s[0], 2 * (x * z - y * w) * s[0], 0,
-      2 * (x * y - z * w) * s[1], (1 - 2 * (x * x + z * z)) * s[1], 2 * (y * z + x * w) * s[1], 0,
-      2 * (x * z + y * w) * s[2], 2 * (y * z - x * w) * s[2], (1 - 2 * (x * x + y * y)) * s[2], 0,
-      t[0], t[1], t[2], 1,
-    ]);
-    return o;
-  },
-  perspective(fovy, aspect, near, far) {
-    const f = 1 / Math.tan(fovy / 2), nf = 1 / (near - far);
-    return new Float32Array([f / aspect, 0, 0, 0, 0, f, 0, 0, 0, 0, (far + near) * nf, -1, 0, 0, 2 * far * near * nf, 0]);
-  },
-  lookAt(eye, at, up) {
-    const z = norm(sub(eye, at)), x = norm(cross(up, z)), y = cross(z, x);
-    return new Float32Array([x[0], y[0], z[0], 0, x[1], y[1], z[1], 0, x[2], y[2], z[2], 0,
-      -dot(x, eye), -dot(y, eye), -dot(z, eye), 1]);
-  },
-};
-const sub = (a, b) => [a[0] - b[0], a[1] - b[1], a[2] - b[2]];
-const dot = (a, b) => a[0] * b[0] + a[1] * b[1] + a[2] * b[2];
-const cross = (a, b) => [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]];
-const norm = (a) => { const l = Math.hypot(a[0], a[1], a[2]) || 1; return [a[0] / l, a[1] / l, a[2] / l]; };
 
 /** Interpolates a sampler's keys at time `t` (clamped to its range). */
 function sample(s, t) {
@@ -135,61 +100,16 @@ void main() {
   outColor = vec4(mix(12.92 * linear, 1.055 * pow(linear, vec3(1.0 / 2.4)) - 0.055, step(0.0031308, linear)), 1.0);
 }`;
 
-function compile(gl, vertex, fragment) {
-  const program = gl.createProgram();
-  for (const [type, text] of [[gl.VERTEX_SHADER, vertex], [gl.FRAGMENT_SHADER, fragment]]) {
-    const s = gl.createShader(type);
-    gl.shaderSource(s, text); gl.compileShader(s);
-    if (!gl.getShaderParameter(s, gl.COMPILE_STATUS)) throw new Error('shader: ' + gl.getShaderInfoLog(s));
-    gl.attachShader(program, s);
-  }
-  gl.linkProgram(program);
-  if (!gl.getProgramParameter(program, gl.LINK_STATUS)) throw new Error('program: ' + gl.getProgramInfoLog(program));
-  return program;
-}
-
-/** The background the canvas is cleared to (sRGB bytes; the browser test looks for anything else). */
-export const BACKGROUND = [236, 239, 244];
+/** The background the canvas is cleared to (re-exported for the browser test). */
+export { BACKGROUND };
 
 export class GlbView {
   /** Draws into `canvas`; `onFrame(time, duration)` is told each drawn frame's animation time. */
   constructor(canvas, onFrame = () => {}) {
     const gl = canvas.getContext('webgl2', { antialias: true, preserveDrawingBuffer: true });
     if (!gl) throw new Error('this browser has no WebGL2');
-    this.gl = gl; this.canvas = canvas; this.onFrame = onFrame;
-    this.yaw = 0.6; this.pitch = 0.15; this.zoom = 1; this.playing = true; this.time = 0; this.duration = 0;
-    this.frames = 0; this.scene = null;
-    // Set when the picture must be drawn again though the animation does not play (orbit, zoom, scrub).
-    this.dirty = true;
-    new ResizeObserver(() => { this.dirty = true; }).observe(canvas);
-    let drag = null;
-    canvas.addEventListener('pointerdown', (e) => { drag = [e.clientX, e.clientY]; canvas.setPointerCapture(e.pointerId); });
-    canvas.addEventListener('pointerup', () => { drag = null; });
-    canvas.addEventListener('pointermove', (e) => {
-      if (!drag) return;
-      this.yaw -= (e.clientX - drag[0]) * 0.01;
-      this.pitch = Math.max(-1.4, Math.min(1.4, this.pitch + (e.clientY - drag[1]) * 0.01));
-      drag = [e.clientX, e.clientY];
-      this.dirty = true;
-    });
-    canvas.addEventListener('wheel', (e) => {
-      e.preventDefault();
-      this.zoom = Math.max(0.2, Math.min(5, this.zoom * Math.exp(e.deltaY * 0.001)));
-      this.dirty = true;
-    }, { passive: false });
-    let last = performance.now();
-    // Draws only when the picture changes: a paused view costs nothing.
-    const tick = (now) => {
-      const advance = this.scene && this.playing && this.duration > 0;
-      if (advance) this.time = (this.time + (now - last) / 1000) % this.duration;
-      last = now;
-      if (this.scene && (advance || this.dirty)) {
-        this.dirty = false;
-        this.draw();
-      }
-      requestAnimationFrame(tick);
-    };
-    requestAnimationFrame(tick);
+    this.gl = gl; this.canvas = canvas; this.scene = null;
+    animate(this, canvas, onFrame);
   }
 
   /** Fetches and shows the .glb at `url`. */
@@ -294,9 +214,7 @@ export class GlbView {
 
   draw() {
     const gl = this.gl, sc = this.scene, canvas = this.canvas;
-    const dpr = window.devicePixelRatio || 1;
-    const w = Math.round(canvas.clientWidth * dpr), h = Math.round(canvas.clientHeight * dpr);
-    if (canvas.width !== w || canvas.height !== h) { canvas.width = w; canvas.height = h; }
+    const [w, h] = fitCanvas(canvas);
     gl.viewport(0, 0, w, h);
     gl.clearColor(...BACKGROUND.map((c) => c / 255), 1);
     gl.clear(gl.COLOR_BUFFER_BIT | gl.DEPTH_BUFFER_BIT);
@@ -327,7 +245,5 @@ export class GlbView {
     if (sc.indexType !== null) gl.drawElements(gl.TRIANGLES, sc.count, sc.indexType, 0);
     else gl.drawArrays(gl.TRIANGLES, 0, sc.count);
     gl.bindVertexArray(null);
-    this.frames += 1;
-    this.onFrame(this.time, this.duration);
   }
 }
