@@ -21,7 +21,7 @@ bake_seconds=$((SECONDS - start))
 for split in training-view novel-view novel-pose; do
     "$ANERF" eval "$RUN" --baked --split "$split" --quiet >/dev/null
 done
-"$ANERF" bench --run "$RUN" --steps 0 --render-size 512 | tee "$OUT/bench.txt"
+"$ANERF" bench --run "$RUN" --presets fast --steps 0 --render-size 512 | tee "$OUT/bench.txt"
 python3 "$ROOT/scripts/ablation/collect.py" --title "Avatar ($PRESET)" \
     "NeRF=$RUN" "baked Gaussians=$RUN/baked" | tee "$OUT/table.md"
 python3 - "$RUN/baked" "$bake_seconds" <<'PY' | tee -a "$OUT/table.md"

@@ -10,6 +10,7 @@ use anerf_data::motion::FrameRange;
 use anerf_run::mesh::MeshJob;
 use anerf_run::motion::{MotionRequest, Place};
 use anerf_run::JobOptions;
+use anerf_run::{Avatar, Surface};
 use anerf_train::run_start::RunStart;
 use clap::Args;
 use glam::DVec3;
@@ -101,15 +102,44 @@ pub struct SurfaceArgs {
 }
 
 impl SurfaceArgs {
-    /// A mesh job of these settings with no frames to repose.
-    pub fn job(&self) -> MeshJob {
-        MeshJob {
+    /// These settings.
+    pub fn surface(&self) -> Surface {
+        Surface {
             voxel: self.voxel,
             level: self.level,
             smooth: self.smooth,
-            frames: Vec::new(),
-            posed_frames: Vec::new(),
-            carve: true,
+        }
+    }
+
+    /// A mesh job of these settings with no frames to repose.
+    pub fn job(&self) -> MeshJob {
+        self.surface().job()
+    }
+}
+
+/// Which form of the avatar a command draws: the NeRF, the baked Gaussians or the exported mesh.
+#[derive(Debug, Args)]
+pub struct AvatarArgs {
+    /// The Gaussians of `anerf bake` instead of the NeRF (novel poses and motions need no stage-2 field;
+    /// results under <run>/baked/, renders named baked_*).
+    #[arg(long, conflicts_with = "mesh")]
+    pub baked: bool,
+    /// The vertex-coloured mesh `anerf export` writes into the glb, extracted with --voxel, --level and
+    /// --smooth (no stage-2 field needed; results under <run>/meshes/, renders named mesh_*).
+    #[arg(long)]
+    pub mesh: bool,
+    #[command(flatten)]
+    pub surface: SurfaceArgs,
+}
+
+impl AvatarArgs {
+    pub fn avatar(&self) -> Avatar {
+        if self.baked {
+            Avatar::Baked
+        } else if self.mesh {
+            Avatar::Mesh(self.surface.surface())
+        } else {
+            Avatar::Nerf
         }
     }
 }

@@ -7,6 +7,7 @@ pub mod gltf_export;
 pub mod heatmap;
 pub mod images;
 pub mod mesh_io;
+pub mod mesh_raster;
 pub mod mesh_smooth;
 pub mod metrics;
 pub mod pixels;

@@ -9,8 +9,9 @@ use anerf_eval::report::{EvalRecorder, EvalSplit, Summary};
 use anerf_eval::silhouette::Silhouettes;
 use anyhow::{bail, Result};
 
-use crate::bake::{self, DeviceAvatar};
 use crate::memory::Work;
+use crate::mesh::MeshJob;
+use crate::raster::Skinned;
 use crate::{device, load_trained, open_run, JobOptions};
 use anerf_train::experiment::Experiment;
 use anerf_train::render::render_view;
@@ -26,12 +27,37 @@ pub struct Evaluated {
 }
 
 /// Which form of the avatar an evaluation renders.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[derive(Debug, Clone, Copy, PartialEq)]
 pub enum Avatar {
     /// The NeRF (results in `<run>/eval/<split>/`).
     Nerf,
     /// The Gaussians of `anerf bake` (results in `<run>/baked/eval/<split>/`).
     Baked,
+    /// The vertex-coloured mesh `anerf export` writes into the glb, extracted with these settings (results
+    /// in `<run>/meshes/eval/<split>/`).
+    Mesh(Surface),
+}
+
+/// How a canonical surface is extracted: voxel (metres), iso level on raw density, Taubin smoothing steps.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Surface {
+    pub voxel: f32,
+    pub level: f32,
+    pub smooth: usize,
+}
+
+impl Surface {
+    /// A mesh job of these settings with no frames to repose.
+    pub fn job(&self) -> MeshJob {
+        MeshJob {
+            voxel: self.voxel,
+            level: self.level,
+            smooth: self.smooth,
+            frames: Vec::new(),
+            posed_frames: Vec::new(),
+            carve: true,
+        }
+    }
 }
 
 /// Renders the views of `split` with `avatar` and writes its evaluation folder.
@@ -44,16 +70,13 @@ pub fn eval(
     let (run, config) = open_run(run_path, options, Work::Render)?;
     let device = device(&config, options)?;
     let model = load_trained(&run, &config, &device)?;
-    let baked = match avatar {
-        Avatar::Nerf => None,
-        Avatar::Baked => Some(DeviceAvatar::new(&bake::load_baked(&run)?, &device)),
-    };
     let mut exp = Experiment::open(config, device, options.progress)?;
+    let skinned = Skinned::open(avatar, &run, &model, &exp)?;
     let frames: Vec<FrameId> = match split {
         EvalSplit::TrainingView | EvalSplit::NovelView => exp.train_frames.clone(),
         EvalSplit::NovelPose => {
-            // The Gaussians are posed by their own canonical skin: no stage-2 field is needed.
-            if baked.is_none() && model.novel_blend.is_none() {
+            // The Gaussians and the mesh are posed by their own canonical skin: no stage-2 field is needed.
+            if skinned.is_none() && model.novel_blend.is_none() {
                 bail!(
                     "{} has no stage-2 checkpoint; run `anerf animate {}` before a novel-pose evaluation",
                     run.root.display(),
@@ -80,6 +103,7 @@ pub fn eval(
     let dir = match avatar {
         Avatar::Nerf => run.eval(),
         Avatar::Baked => run.baked().join("eval"),
+        Avatar::Mesh(_) => run.meshes().join("eval"),
     }
     .join(split.name());
     let mut recorder = EvalRecorder::new(&dir, split);
@@ -88,8 +112,8 @@ pub fn eval(
     for &frame in &frames {
         for &view in &views {
             let camera = exp.prepared.cameras[view.0].clone();
-            let image = match &baked {
-                Some(b) => bake::render_view(b, &model, &exp, frame, &camera, Some(view))?,
+            let image = match &skinned {
+                Some(avatar) => avatar.view(&model, &exp, frame, &camera, Some(view))?,
                 None => render_view(&model, &mut exp, frame, &camera, Some(view))?,
             };
             let gt = image

@@ -10,6 +10,7 @@ mod export;
 pub mod memory;
 pub mod mesh;
 pub mod motion;
+mod raster;
 mod render;
 mod stages;
 
@@ -22,7 +23,7 @@ use anerf_device::DeviceSpec;
 use anyhow::{bail, Context, Result};
 use burn::prelude::Device;
 
-pub use eval::{eval, Avatar, Evaluated};
+pub use eval::{eval, Avatar, Evaluated, Surface};
 pub use export::{capture_to_gltf, export, joint_frame, ExportJob, Exported, TRAINING_FPS};
 pub use mesh::{mesh, MeshFile, MeshFiles};
 pub use motion::{animate_motion, FittedMotion, MotionCamera};

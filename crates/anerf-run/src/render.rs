@@ -7,10 +7,10 @@ use anerf_core::FrameId;
 use anerf_eval::images::{write_gif, write_mp4, write_png, PngDepth, VideoOutcome};
 use anyhow::{bail, Context, Result};
 
-use crate::bake::{self, DeviceAvatar};
 use crate::memory::Work;
 use crate::motion::MotionRequest;
 use crate::motion::{render_motion, MotionCamera, MotionFrames};
+use crate::raster::{skinned_motion, Skinned};
 use crate::Avatar;
 use crate::{device, load_trained, open_run, JobOptions};
 use anerf_train::experiment::Experiment;
@@ -61,8 +61,8 @@ pub struct Rendered {
 }
 
 /// Renders `job` with `avatar`: PNG frames, an animated GIF and (with ffmpeg on PATH) an MP4 under
-/// `<run>/renders/` (the baked avatar's names start with `baked_`). The baked avatar plays novel poses and
-/// motions without a stage-2 field.
+/// `<run>/renders/` (the baked avatar's names start with `baked_`, the mesh's with `mesh_`). The skinned
+/// avatars play novel poses and motions without a stage-2 field.
 pub fn render(
     run_path: &Path,
     job: RenderJob,
@@ -89,19 +89,23 @@ pub fn render(
                 camera,
                 size,
             },
-            Avatar::Baked,
-        ) => bake::render_motion(&run, config, &request, camera, size, options)?,
+            avatar,
+        ) => {
+            let (_, exp, skinned) = open_model(&run, config, avatar, options)?;
+            let skinned = skinned.expect("a skinned avatar");
+            skinned_motion(&skinned, &exp, &request, camera, size, options)?
+        }
         (RenderJob::Orbit { frame, views, size }, avatar) => {
-            let (model, mut exp, baked) = open_model(&run, config, avatar, options)?;
-            let (name, shots) = orbit_shots(&exp, &model, baked.is_some(), frame, views, size)?;
-            let frames = render_dataset_shots(&model, &mut exp, baked.as_ref(), &shots, options)?;
-            (prefixed(name, &baked), frames, 12.0)
+            let (model, mut exp, skinned) = open_model(&run, config, avatar, options)?;
+            let (name, shots) = orbit_shots(&exp, &model, skinned.is_some(), frame, views, size)?;
+            let frames = render_dataset_shots(&model, &mut exp, skinned.as_ref(), &shots, options)?;
+            (prefixed(name, &skinned), frames, 12.0)
         }
         (RenderJob::NovelPoses { view }, avatar) => {
-            let (model, mut exp, baked) = open_model(&run, config, avatar, options)?;
-            let (name, shots) = novel_pose_shots(&exp, &model, &run, baked.is_some(), view)?;
-            let frames = render_dataset_shots(&model, &mut exp, baked.as_ref(), &shots, options)?;
-            (prefixed(name, &baked), frames, 12.0)
+            let (model, mut exp, skinned) = open_model(&run, config, avatar, options)?;
+            let (name, shots) = novel_pose_shots(&exp, &model, &run, skinned.is_some(), view)?;
+            let frames = render_dataset_shots(&model, &mut exp, skinned.as_ref(), &shots, options)?;
+            (prefixed(name, &skinned), frames, 12.0)
         }
     };
     let dir = run.renders().join(&name);
@@ -123,30 +127,24 @@ pub fn render(
     })
 }
 
-/// The run's trained model, its experiment and, for [`Avatar::Baked`], its baked avatar.
+/// The run's trained model, its experiment and, for a skinned `avatar`, that avatar.
 fn open_model(
     run: &RunDir,
     config: anerf_train::config::ExperimentConfig,
     avatar: Avatar,
     options: &JobOptions,
-) -> Result<(AnimatableNerf, Experiment, Option<DeviceAvatar>)> {
+) -> Result<(AnimatableNerf, Experiment, Option<Skinned>)> {
     let device = device(&config, options)?;
     let model = load_trained(run, &config, &device)?;
-    let baked = match avatar {
-        Avatar::Nerf => None,
-        Avatar::Baked => Some(DeviceAvatar::new(&bake::load_baked(run)?, &device)),
-    };
-    Ok((
-        model,
-        Experiment::open(config, device, options.progress)?,
-        baked,
-    ))
+    let exp = Experiment::open(config, device, options.progress)?;
+    let skinned = Skinned::open(avatar, run, &model, &exp)?;
+    Ok((model, exp, skinned))
 }
 
-/// A render's output name, `baked_` first for the baked avatar's.
-fn prefixed(name: String, baked: &Option<DeviceAvatar>) -> String {
-    match baked {
-        Some(_) => format!("baked_{name}"),
+/// A render's output name, with the skinned avatar's prefix.
+fn prefixed(name: String, skinned: &Option<Skinned>) -> String {
+    match skinned {
+        Some(s) => format!("{}{name}", s.prefix()),
         None => name,
     }
 }
@@ -176,19 +174,19 @@ fn report_motion(m: &MotionFrames) {
 /// A dataset frame seen by a camera.
 type DatasetShot = (FrameId, anerf_core::geometry::Camera);
 
-/// Renders dataset frames from cameras (no ground truth), with the NeRF or the `baked` avatar.
+/// Renders dataset frames from cameras (no ground truth), with the NeRF or a `skinned` avatar.
 fn render_dataset_shots(
     model: &AnimatableNerf,
     exp: &mut Experiment,
-    baked: Option<&DeviceAvatar>,
+    skinned: Option<&Skinned>,
     shots: &[DatasetShot],
     options: &JobOptions,
 ) -> Result<Vec<image::Rgb32FImage>> {
     let bar = options.bar("render", shots.len());
     let mut frames = Vec::with_capacity(shots.len());
     for (frame, camera) in shots {
-        let image = match baked {
-            Some(avatar) => bake::render_view(avatar, model, exp, *frame, camera, None)?,
+        let image = match skinned {
+            Some(avatar) => avatar.view(model, exp, *frame, camera, None)?,
             None => render_view(model, exp, *frame, camera, None)?,
         };
         frames.push(image.prediction);
@@ -199,17 +197,17 @@ fn render_dataset_shots(
 }
 
 /// The output name and cameras of an orbit around dataset frame `frame` (default: the first training one).
-/// `baked`: the Gaussians render novel poses without a stage-2 field.
+/// `skinned`: a skinned avatar renders novel poses without a stage-2 field.
 fn orbit_shots(
     exp: &Experiment,
     model: &AnimatableNerf,
-    baked: bool,
+    skinned: bool,
     frame: Option<usize>,
     views: usize,
     size: Option<u32>,
 ) -> Result<(String, Vec<DatasetShot>)> {
     let frame = frame.map(FrameId).unwrap_or(exp.train_frames[0]);
-    if baked {
+    if skinned {
         exp.frame_code(frame)?;
     } else {
         exp.check_renderable(frame, model)?;
@@ -233,10 +231,10 @@ fn novel_pose_shots(
     exp: &Experiment,
     model: &AnimatableNerf,
     run: &RunDir,
-    baked: bool,
+    skinned: bool,
     view: usize,
 ) -> Result<(String, Vec<DatasetShot>)> {
-    if !baked && model.novel_blend.is_none() {
+    if !skinned && model.novel_blend.is_none() {
         bail!(
             "{} has no stage-2 checkpoint; run `anerf animate` first",
             run.root.display()

@@ -52,6 +52,28 @@ fn a_baked_avatar_fits_the_training_views_and_evaluates_on_every_split() {
         novel.dir.display()
     );
     assert!(novel.summary.psnr.is_finite() && novel.summary.images > 0);
+    // The mesh the glb holds, scored the same way; each form writes the files the NeRF's evaluation does.
+    let surface = anerf_run::Surface {
+        voxel: 0.02,
+        level: 0.0,
+        smooth: 0,
+    };
+    let forms = [Avatar::Nerf, Avatar::Baked, Avatar::Mesh(surface)];
+    let listings: Vec<Vec<String>> = forms
+        .iter()
+        .map(|&avatar| {
+            let e = anerf_run::eval(&run, EvalSplit::TrainingView, avatar, &quiet()).unwrap();
+            assert!(e.summary.psnr.is_finite(), "{avatar:?}: {:?}", e.summary);
+            files_under(&e.dir)
+        })
+        .collect();
+    assert!(listings[0].iter().any(|f| f.ends_with("_pred.png")));
+    assert_eq!(
+        listings[1], listings[0],
+        "the baked avatar's evaluation files"
+    );
+    assert_eq!(listings[2], listings[0], "the mesh's evaluation files");
+    assert!(run.join("meshes/eval/training-view/summary.json").is_file());
 
     // The PLY export: the canonical Gaussians, their skin, one posed file per training frame.
     let ply = SplatExportJob {
@@ -144,4 +166,22 @@ fn ply_means(path: &std::path::Path) -> Vec<[f32; 3]> {
             [f(0), f(1), f(2)]
         })
         .collect()
+}
+
+/// The files under `dir`, relative and sorted.
+fn files_under(dir: &std::path::Path) -> Vec<String> {
+    let mut out = Vec::new();
+    let mut stack = vec![dir.to_path_buf()];
+    while let Some(d) = stack.pop() {
+        for entry in std::fs::read_dir(&d).unwrap() {
+            let path = entry.unwrap().path();
+            if path.is_dir() {
+                stack.push(path);
+            } else {
+                out.push(path.strip_prefix(dir).unwrap().display().to_string());
+            }
+        }
+    }
+    out.sort();
+    out
 }

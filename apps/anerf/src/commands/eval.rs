@@ -3,11 +3,11 @@
 use std::path::PathBuf;
 
 use anerf_eval::report::{markdown_table, EvalSplit};
-use anerf_run::{Avatar, Evaluated};
+use anerf_run::Evaluated;
 use anyhow::Result;
 use clap::Args;
 
-use crate::args::Common;
+use crate::args::{AvatarArgs, Common};
 
 #[derive(Debug, Args)]
 pub struct EvalArgs {
@@ -16,20 +16,19 @@ pub struct EvalArgs {
     /// training-view (training frames, training views: the fit, for the gap to the held-out splits).
     #[arg(long, default_value = "novel-view")]
     pub split: EvalSplit,
-    /// Evaluate the Gaussians of `anerf bake` instead of the NeRF (results in <run>/baked/eval/).
-    #[arg(long)]
-    pub baked: bool,
+    #[command(flatten)]
+    pub avatar: AvatarArgs,
     #[command(flatten)]
     pub common: Common,
 }
 
 pub fn run(args: &EvalArgs) -> Result<Evaluated> {
-    let avatar = if args.baked {
-        Avatar::Baked
-    } else {
-        Avatar::Nerf
-    };
-    let evaluated = anerf_run::eval(&args.run, args.split, avatar, &args.common.options())?;
+    let evaluated = anerf_run::eval(
+        &args.run,
+        args.split,
+        args.avatar.avatar(),
+        &args.common.options(),
+    )?;
     print(&evaluated, args.split);
     Ok(evaluated)
 }

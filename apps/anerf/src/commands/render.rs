@@ -2,11 +2,11 @@
 
 use std::path::PathBuf;
 
-use anerf_run::{Avatar, MotionCamera, RenderJob, Rendered};
+use anerf_run::{MotionCamera, RenderJob, Rendered};
 use anyhow::Result;
 use clap::Args;
 
-use crate::args::{Common, MotionArgs};
+use crate::args::{AvatarArgs, Common, MotionArgs};
 
 #[derive(Debug, Args)]
 pub struct RenderArgs {
@@ -33,10 +33,8 @@ pub struct RenderArgs {
     /// Output image size (width = height) of an orbit or a motion; default: the dataset's.
     #[arg(long)]
     pub size: Option<u32>,
-    /// Render the Gaussians of `anerf bake` instead of the NeRF (novel poses and motions then need no
-    /// stage-2 field; names start with baked_).
-    #[arg(long)]
-    pub baked: bool,
+    #[command(flatten)]
+    pub avatar: AvatarArgs,
     #[command(flatten)]
     pub common: Common,
 }
@@ -64,12 +62,12 @@ impl RenderArgs {
 }
 
 pub fn run(args: &RenderArgs) -> Result<Rendered> {
-    let avatar = if args.baked {
-        Avatar::Baked
-    } else {
-        Avatar::Nerf
-    };
-    let rendered = anerf_run::render(&args.run, args.job(), avatar, &args.common.options())?;
+    let rendered = anerf_run::render(
+        &args.run,
+        args.job(),
+        args.avatar.avatar(),
+        &args.common.options(),
+    )?;
     print(&rendered);
     Ok(rendered)
 }

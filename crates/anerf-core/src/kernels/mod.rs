@@ -1,7 +1,7 @@
 //! Hand-written kernels behind Burn backend extensions, for the operations whose tensor form would dominate
 //! a step with small allocations and passes: the warp ([`warp`]: inverse skinning, the log-softmax blend
 //! weights, the volume lookup), the hash-grid encoding ([`hash_grid`]) and the Gaussian splat rasteriser
-//! ([`splat`], CPU only so far). Each has a forward and a
+//! ([`splat`]). Each has a forward and a
 //! backward kernel and a plain-tensor reference in its folder (`reference.rs`), which the kernels' tests
 //! compare against and which every backend without kernels runs; each operation's function in its folder's
 //! `mod.rs` is the one place that picks between them ([`available`]), so callers never ask.
@@ -34,13 +34,4 @@ pub(crate) fn available(device: &Device) -> bool {
         #[allow(unreachable_patterns)]
         _ => false,
     }
-}
-
-/// Whether `device` is the flex backend's (with or without autodiff): the kernels that exist only on the
-/// CPU ([`splat`]) run there.
-pub(crate) fn is_flex(device: &Device) -> bool {
-    matches!(
-        device.as_dispatch().clone().inner(),
-        DispatchDevice::Flex(_)
-    )
 }

@@ -13,12 +13,11 @@ use std::path::{Path, PathBuf};
 
 use anerf_core::gaussians::{render, GaussianCloud, SplatView};
 use anerf_core::geometry::{
-    BoneMatrices, BoneTransforms, Camera, CanonicalPose, PixelConvention, Pose,
+    BoneMatrices, BoneTransforms, Camera, CanonicalPose, PixelConvention, Pose, Skeleton,
 };
 use anerf_core::model::AnimatableNerf;
 use anerf_core::tensor::to_host;
-use anerf_core::{FrameId, ViewId};
-use anerf_train::render::RenderedImage;
+use anerf_core::FrameId;
 use anyhow::{bail, Context, Result};
 use burn::prelude::{Device, Tensor};
 
@@ -168,136 +167,34 @@ impl DeviceAvatar {
     }
 }
 
-/// The avatar at frame `frame`'s pose (the refined fit where the model refines training frames) seen by
-/// `camera`: `[H·W, 4]` row-major colour on black and opacity, on the host. What a real-time viewer pays
-/// per image (posing, projection, rasterisation, read-back).
-pub fn render_pixels(
-    avatar: &DeviceAvatar,
-    model: &AnimatableNerf,
-    exp: &Experiment,
-    frame: FrameId,
-    camera: &Camera,
-) -> Result<Vec<f32>> {
-    let (pose, bones) = frame_bones(model, exp, frame)?;
-    let view = SplatView {
-        camera,
-        global: &pose.global,
-        convention: PixelConvention::Integer,
-    };
-    let device = avatar.skin.device();
-    Ok(to_host(render(
-        &avatar.cloud,
-        avatar.skin.clone(),
-        &BoneMatrices::new(&bones, &device),
-        &view,
-    )))
-}
-
-/// Renders frame `frame` of the experiment with the baked avatar, as [`anerf_train::render::render_view`]
-/// renders it with the NeRF: the same pose (the refined fit where the model refines training frames), the
-/// same pixels (those whose ray meets the body's box; black elsewhere) and the same ground truth.
-pub fn render_view(
-    avatar: &DeviceAvatar,
-    model: &AnimatableNerf,
-    exp: &Experiment,
-    frame: FrameId,
-    camera: &Camera,
-    view: Option<ViewId>,
-) -> Result<RenderedImage> {
-    let images = match view {
-        Some(v) => Some((exp.prepared.image(frame, v)?, exp.prepared.mask(frame, v)?)),
-        None => None,
-    };
-    let options = anerf_data::SamplerOptions::default();
-    let rays = anerf_data::image_rays(
-        camera,
-        &exp.frame_bounds(frame)?,
-        images.as_ref().map(|(i, m)| (i, m)),
-        &options,
-    )
-    .context("the pixels the body's box covers")?;
-    debug_assert_eq!(options.convention, PixelConvention::Integer);
-    let pixels = render_pixels(avatar, model, exp, frame, camera)?;
-    let width = rays.width;
-    let shaded: Vec<[f32; 4]> = rays
-        .rays
-        .pixels
-        .iter()
-        .map(|&[u, v]| {
-            let i = 4 * (v * width + u) as usize;
-            [pixels[i], pixels[i + 1], pixels[i + 2], pixels[i + 3]]
-        })
-        .collect();
-    Ok(RenderedImage::from_rays(
-        rays,
-        images.as_ref().map(|(_, m)| m),
-        &shaded,
-    ))
-}
-
-/// The avatar posed by `pose` (through `skeleton`'s bones) seen by `camera`, on black.
-pub fn render_pose(
-    avatar: &DeviceAvatar,
-    skeleton: &anerf_core::geometry::Skeleton,
-    pose: &Pose,
-    camera: &Camera,
-) -> Result<image::Rgb32FImage> {
-    let bones = skeleton.bone_transforms(pose, CanonicalPose::TPose)?;
-    let view = SplatView {
-        camera,
-        global: &pose.global,
-        convention: PixelConvention::Integer,
-    };
-    let device = avatar.skin.device();
-    let pixels = to_host(render(
-        &avatar.cloud,
-        avatar.skin.clone(),
-        &BoneMatrices::new(&bones, &device),
-        &view,
-    ));
-    let rgb: Vec<f32> = pixels
-        .chunks_exact(4)
-        .flat_map(|p| [p[0], p[1], p[2]])
-        .collect();
-    image::Rgb32FImage::from_raw(camera.width, camera.height, rgb)
-        .context("an image of the camera's size")
-}
-
-/// `request`'s motion played by the run's baked avatar: no stage-2 fit, the Gaussians carry their skin.
-/// Returns the output name, the images and their frame rate.
-pub(crate) fn render_motion(
-    run: &anerf_train::run_dir::RunDir,
-    config: anerf_train::config::ExperimentConfig,
-    request: &crate::motion::MotionRequest,
-    camera: crate::motion::MotionCamera,
-    size: Option<u32>,
-    options: &JobOptions,
-) -> Result<(String, Vec<image::Rgb32FImage>, f64)> {
-    let device = device(&config, options)?;
-    let avatar = DeviceAvatar::new(&load_baked(run)?, &device);
-    let exp = Experiment::open(config, device, options.progress)?;
-    let seen = crate::motion::MotionView::new(&exp, camera, size)?;
-    let clip = crate::motion::MotionClip::new(request, &exp, seen.view)?;
-    let skeleton = &exp.prepared.skeleton;
-    let n = clip.poses.len();
-    let bar = options.bar("render", n);
-    let mut images = Vec::with_capacity(n);
-    for (i, pose) in clip.poses.iter().enumerate() {
+impl DeviceAvatar {
+    /// The Gaussians posed by `pose` (through `skeleton`'s bones) seen by `camera`: `[H·W]` row-major colour
+    /// on black and opacity, on the host. What a real-time viewer pays per image (posing, projection,
+    /// rasterisation, read-back).
+    pub fn pose_pixels(
+        &self,
+        skeleton: &Skeleton,
+        pose: &Pose,
+        camera: &Camera,
+    ) -> Result<Vec<[f32; 4]>> {
         let bones = skeleton.bone_transforms(pose, CanonicalPose::TPose)?;
-        let joints: Vec<glam::Vec3> = skeleton
-            .rest_joints()
-            .iter()
-            .zip(bones.matrices())
-            .map(|(j, a)| pose.global.pose_to_world(a.transform_point3(*j)))
-            .collect();
-        let center = joints.iter().sum::<glam::Vec3>() / joints.len().max(1) as f32;
-        let image = render_pose(&avatar, skeleton, pose, &seen.camera(i, n, center))
-            .with_context(|| format!("rendering frame {i} of motion {}", clip.name))?;
-        images.push(image);
-        bar.set_step(i + 1);
+        let view = SplatView {
+            camera,
+            global: &pose.global,
+            convention: PixelConvention::Integer,
+        };
+        let device = self.skin.device();
+        let flat = to_host(render(
+            &self.cloud,
+            self.skin.clone(),
+            &BoneMatrices::new(&bones, &device),
+            &view,
+        ));
+        Ok(flat
+            .chunks_exact(4)
+            .map(|p| [p[0], p[1], p[2], p[3]])
+            .collect())
     }
-    bar.finish(n, "finished");
-    Ok((format!("baked_{}", seen.name(&clip.name)), images, clip.fps))
 }
 
 /// The run's baked avatar, read and checked.

@@ -14,7 +14,10 @@ use crate::memory::Work;
 use crate::{device, load_trained, open_run, JobOptions};
 use anerf_train::experiment::Experiment;
 
+mod skinned;
 mod surface;
+
+pub use skinned::SkinnedSurface;
 
 pub use surface::{
     canonical_mesh, density_surface, posed_mesh, repose, CanonicalMesh, MeshJob, PosedFrame,

@@ -18,14 +18,15 @@ use burn::tensor::{DType, Shape};
 use burn_cubecl::cubecl;
 use burn_cubecl::ops::numeric::zeros_client;
 use burn_cubecl::tensor::CubeTensor;
-use cubecl::features::AtomicUsage;
-use cubecl::ir::{ElemType, FloatKind, Type, UIntKind};
+use cubecl::ir::ElemType;
 use cubecl::prelude::*;
 
 use super::cpu::HASH_PRIMES;
 use super::extension::HashGridBackend;
 use super::GridSpec;
-use crate::kernels::cube::{contiguous_f32, dims, empty_f32, side_sign, side_weight, Units};
+use crate::kernels::cube::{
+    atomic_add, contiguous_f32, dims, empty_f32, side_sign, side_weight, AtomicScheme, Units,
+};
 
 // The hash multiplies x by the first prime, 1, which `corner_row` leaves out.
 const _: () = assert!(HASH_PRIMES[0] == 1);
@@ -195,31 +196,6 @@ fn encode_kernel(
     #[unroll]
     for f in 0..features {
         out[unit.i * row_stride + (unit.l * features + f) * col_stride] = acc[f];
-    }
-}
-
-/// Adds `value` to entry `index` of a table of `f32` read as `Atomic<W>`: with the device's `f32` atomic
-/// add (`native`, `W = f32`), or with `u32` exchanges of the bit patterns (`W = u32`): take the entry's
-/// value out (leaving `0`), put back that value plus the carry, and carry whatever another unit put there
-/// in between; done when nothing was displaced. Every unit adding to the table follows the same protocol,
-/// so no contribution is lost. (An entry holding `−0.0` counts as nothing to carry: dropping it changes no
-/// sum.) See [`AtomicScheme`] for why.
-#[cube]
-fn atomic_add<W: Numeric>(
-    table: &Tensor<Atomic<W>>,
-    index: usize,
-    value: f32,
-    #[comptime] native: bool,
-) {
-    if comptime!(native) {
-        table[index].fetch_add(W::cast_from(value));
-    } else {
-        let mut carry = value;
-        while carry != 0.0f32 {
-            let taken = f32::reinterpret(table[index].exchange(W::cast_from(0u32)));
-            let displaced = table[index].exchange(W::reinterpret(taken + carry));
-            carry = f32::reinterpret(displaced);
-        }
     }
 }
 
@@ -462,45 +438,6 @@ impl Launch {
             units: Units::on(points, units)?,
             levels: level_table(spec, points).into_tensor_arg(),
         })
-    }
-}
-
-/// How [`table_grad`] adds into the table ([`atomic_add`]).
-///
-/// Float atomics are optional on GPUs, and WGSL (what Burn's `wgpu` feature compiles to) has them only
-/// through wgpu's `SHADER_FLOAT32_ATOMIC` extension. Where the device adds `f32` atomically the kernel
-/// does; elsewhere it emulates the add with `u32` atomic exchanges. (A compare-exchange loop is the usual
-/// emulation, but CubeCL's WGSL `atomicCompareExchangeWeak` returns only the old value, so a spurious
-/// failure would pass for a success and lose an update; an exchange never fails.) Either way the order of
-/// the adds is not fixed, so a sum's rounding can differ from run to run and from the CPU kernel's.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub(super) enum AtomicScheme {
-    /// The device's `f32` atomic add, where it has one.
-    Native,
-    /// `u32` atomic exchanges, everywhere.
-    Exchange,
-}
-
-impl AtomicScheme {
-    /// Whether the kernels add natively, and the word they read the `f32` outputs as.
-    fn word(self) -> (bool, ElemType) {
-        match self {
-            Self::Native => (true, ElemType::Float(FloatKind::F32)),
-            Self::Exchange => (false, ElemType::UInt(UIntKind::U32)),
-        }
-    }
-
-    /// The scheme the device of `t` supports best.
-    pub(super) fn for_device(t: &CubeTensor) -> Self {
-        let usage = t
-            .client
-            .properties()
-            .atomic_type_usage(Type::atomic(ElemType::Float(FloatKind::F32)));
-        if usage.contains(AtomicUsage::Add) {
-            Self::Native
-        } else {
-            Self::Exchange
-        }
     }
 }
 

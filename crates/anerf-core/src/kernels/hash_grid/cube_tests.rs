@@ -9,15 +9,16 @@
 //! (sums over 4 levels of derivatives scaled by up to 8 cells per metre) and `1e-4 · (1 + |x|)` for the
 //! table; see each test for the atomic-add bound.
 
-use burn::backend::{BackendTensor, DispatchTensorKind};
 use burn::prelude::*;
 use burn_cubecl::ops::into_data_sync;
 use burn_cubecl::tensor::CubeTensor;
 
-use super::cube::{self, AtomicScheme};
+use super::cube;
 use super::reference::encode as encode_reference;
 use super::tests::{gradients, points, spec_with, wave};
 use super::*;
+use crate::kernels::cube::testing::{atomic_schemes, cube_tensor};
+use crate::kernels::cube::AtomicScheme;
 use crate::tensor::{from_rows, to_host};
 use crate::DeviceChoice;
 use anerf_device::cpu_device;
@@ -110,26 +111,6 @@ fn cube_gradients_match_flex_and_the_reference() {
 
 /// `2⁻²⁴`, the relative rounding error of one f32 operation.
 const UNIT_ROUNDOFF: f32 = f32::EPSILON / 2.0;
-
-/// The CubeCL tensor behind `t`.
-fn cube_tensor(t: Tensor<2>) -> CubeTensor {
-    match t.into_dispatch().kind {
-        DispatchTensorKind::Cube(BackendTensor::Float(t)) => t,
-        other => panic!("expected a float tensor on a CubeCL device, got {other:?}"),
-    }
-}
-
-/// The atomic schemes the device of `gpu` runs: the exchange scheme everywhere, the float add where the
-/// device has it.
-fn atomic_schemes(gpu: &Device) -> Vec<AtomicScheme> {
-    let probe = cube_tensor(Tensor::zeros([1, 1], gpu));
-    if AtomicScheme::for_device(&probe) == AtomicScheme::Native {
-        vec![AtomicScheme::Native, AtomicScheme::Exchange]
-    } else {
-        eprintln!("the device has no f32 atomic add: checking the exchange scheme alone");
-        vec![AtomicScheme::Exchange]
-    }
-}
 
 /// The table gradient of `n` points `p` and output gradient `grad` on `gpu`, added with `scheme`.
 fn gpu_table_grad(

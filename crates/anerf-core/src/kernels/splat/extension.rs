@@ -1,6 +1,6 @@
-//! The rasteriser as a Burn backend extension: the flex backend runs [`super::cpu`]; the autodiff backend
-//! wraps it with the hand-written backward pass. Other backends use [`super::reference::rasterize`] (see
-//! [`super::rasterize`]).
+//! The rasteriser as a Burn backend extension: the flex backend runs [`super::cpu`], the CubeCL backend
+//! (`wgpu`, `cuda` features) the `cube` kernels; the autodiff backend wraps either with the hand-written
+//! backward pass. Other backends use [`super::reference::rasterize`] (see [`super::rasterize`]).
 
 use burn::backend::autodiff::checkpoint::base::Checkpointer;
 use burn::backend::autodiff::checkpoint::strategy::CheckpointStrategy;
@@ -17,7 +17,7 @@ use super::{cpu, RasterSpec, PIXEL_WIDTH, SPLAT_WIDTH};
 use crate::kernels::flex::{dims, tensor as flex_tensor, values};
 
 /// The rasteriser's primitive operations (`f32`, row-major; shapes in [`super`]).
-#[backend_extension(Flex, Autodiff)]
+#[backend_extension(Flex, Cube: cfg(any(feature = "wgpu", feature = "cuda")), Autodiff)]
 pub trait SplatBackend: burn::backend::Backend {
     /// `[N, SPLAT_WIDTH]` splats → `[H·W, PIXEL_WIDTH]` pixels.
     fn splat_rasterize(splats: FloatTensor<Self>, spec: RasterSpec) -> FloatTensor<Self>;
@@ -30,7 +30,7 @@ pub trait SplatBackend: burn::backend::Backend {
     ) -> FloatTensor<Self>;
 }
 
-/// The rasteriser through the extension; `splats` must live on the flex backend's device.
+/// The rasteriser through the extension; `splats` must live on a device with the kernels.
 pub fn rasterize(splats: Tensor<2>, spec: &RasterSpec) -> Tensor<2> {
     Tensor::from_dispatch(<Dispatch as SplatBackend>::splat_rasterize(
         splats.into_dispatch(),

@@ -1,8 +1,9 @@
 //! The Gaussian splat rasteriser (3D Gaussian Splatting's tile-based, depth-sorted alpha compositing) for
 //! avatars baked into Gaussians: projected splats in, a premultiplied colour and alpha image out, with its
-//! backward pass. The CPU kernel ([`cpu`]) runs on the flex backend behind a Burn backend extension
-//! ([`extension`]); the plain-tensor [`reference`] evaluates every splat at every pixel (for tests, and for
-//! the backends without the kernel); [`rasterize`] picks between them.
+//! backward pass. The CPU kernel ([`cpu`]) runs on the flex backend and the CubeCL kernels (`cube`: the
+//! `wgpu` and `cuda` features) on the GPU backends, behind one Burn backend extension ([`extension`]); the
+//! plain-tensor [`reference`] evaluates every splat at every pixel (for tests, and for the backends without
+//! a kernel); [`rasterize`] picks between them.
 //!
 //! A splat is a row of [`SPLAT_WIDTH`] values: mean `x, y` (pixels; pixel `(x, y)` is evaluated at the
 //! point `(x, y)`, so the projection owns the pixel-centre convention), conic `a, b, c` (the inverse 2-D
@@ -10,6 +11,8 @@
 //! axis; it orders the splats and has no gradient).
 
 pub mod cpu;
+#[cfg(any(feature = "wgpu", feature = "cuda"))]
+mod cube;
 pub mod extension;
 pub mod reference;
 
@@ -43,10 +46,9 @@ impl RasterSpec {
 }
 
 /// Rasterises `splats` (`[N, SPLAT_WIDTH]`) into `[H·W, PIXEL_WIDTH]` (row-major pixels), differentiable in
-/// every splat value but the depth: the CPU kernel on the flex backend, the [`reference`] elsewhere (no
-/// GPU kernel yet).
+/// every splat value but the depth: the kernels where the device has them, the [`reference`] elsewhere.
 pub fn rasterize(splats: Tensor<2>, spec: &RasterSpec) -> Tensor<2> {
-    if super::is_flex(&splats.device()) {
+    if super::available(&splats.device()) {
         extension::rasterize(splats, spec)
     } else {
         reference::rasterize(splats, spec)
@@ -55,3 +57,6 @@ pub fn rasterize(splats: Tensor<2>, spec: &RasterSpec) -> Tensor<2> {
 
 #[cfg(test)]
 mod tests;
+
+#[cfg(all(test, any(feature = "wgpu", feature = "cuda")))]
+mod cube_tests;

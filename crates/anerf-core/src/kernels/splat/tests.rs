@@ -71,7 +71,7 @@ fn both(rows: &[f32], spec: &RasterSpec) -> (Vec<f32>, Vec<f32>) {
 }
 
 /// A deterministic value in `[0, 1)` for `i` (independent of any global RNG).
-fn unit(i: usize) -> f32 {
+pub(super) fn unit(i: usize) -> f32 {
     let mut x = (i as u64 + 1).wrapping_mul(0x9e37_79b9_7f4a_7c15);
     x ^= x >> 29;
     x = x.wrapping_mul(0xbf58_476d_1ce4_e5b9);
@@ -82,7 +82,7 @@ fn unit(i: usize) -> f32 {
 /// `n` splats scattered over and around a `w × h` image (some cross tile edges, some lie off it), of
 /// every size, shape and opacity, plus the kernel's skip cases: too transparent to show anywhere, and a
 /// conic that is not positive definite.
-fn scene(n: usize, w: f32, h: f32) -> Vec<f32> {
+pub(super) fn scene(n: usize, w: f32, h: f32) -> Vec<f32> {
     let mut rows: Vec<f32> = (0..n)
         .flat_map(|i| {
             let u = |k: usize| unit(i * 16 + k);
@@ -249,7 +249,7 @@ fn gradient(rows: &[f32], spec: &RasterSpec, weights: &[f32], use_kernel: bool) 
     to_host(splats.grad(&grads).expect("splat gradient"))
 }
 
-fn weights(spec: &RasterSpec) -> Vec<f32> {
+pub(super) fn weights(spec: &RasterSpec) -> Vec<f32> {
     (0..spec.pixels() * PIXEL_WIDTH)
         .map(|i| unit(1_000_000 + i) * 2.0 - 1.0)
         .collect()
@@ -276,11 +276,9 @@ fn kernel_matches_the_reference_backward() {
     assert!(kernel.iter().any(|&g| g != 0.0));
 }
 
-/// Central differences (the objective in f64) against the kernel's backward pass, on large splats whose
-/// cut-off ellipses hold the whole image, under the cap and far from the stop: there the image is a smooth
-/// function of every value.
-#[test]
-fn kernel_gradients_match_central_differences() {
+/// Large splats whose cut-off ellipses hold the whole (small) image, under the cap and far from the stop:
+/// there the image is a smooth function of every value, for central differences.
+pub(super) fn smooth_scene() -> (RasterSpec, Vec<f32>) {
     // The narrowest cut-off (σ = 6 px, opacity 0.3) reaches 6·√(2 ln 76.5) ≈ 17.7 px from the mean, past
     // every corner (at most √(12² + 8²) ≈ 14.4 px away).
     let spec = RasterSpec {
@@ -300,30 +298,57 @@ fn kernel_gradients_match_central_differences() {
             }
         })
         .collect();
-    let rows = pack(&shapes);
+    (spec, pack(&shapes))
+}
+
+/// Central difference steps per splat value: means in pixels, conics in pixels⁻² (about 0.01), colours and
+/// opacity (the depth has none).
+const STEPS: [f32; 9] = [1e-2, 1e-2, 1e-4, 1e-4, 1e-4, 1e-2, 1e-2, 1e-2, 1e-3];
+
+/// Checks `analytic`, the gradient of `Σ weights(spec) ⊙ image` at [`smooth_scene`]'s splats, against
+/// central differences of `forward` (splat rows → `[H·W, 4]` image; the objective summed in f64); `what`
+/// names the gradient's source in a failure.
+pub(super) fn check_central_differences(
+    what: &str,
+    analytic: &[f32],
+    forward: impl Fn(&[f32]) -> Vec<f32>,
+) {
+    let (spec, rows) = smooth_scene();
     let w = weights(&spec);
-    let analytic = gradient(&rows, &spec, &w, true);
     let objective = |rows: &[f32]| -> f64 {
-        let mut out = vec![0.0; spec.pixels() * PIXEL_WIDTH];
-        cpu::forward(rows, &spec, &mut out);
-        out.iter().zip(&w).map(|(a, b)| *a as f64 * *b as f64).sum()
+        let image = forward(rows);
+        image
+            .iter()
+            .zip(&w)
+            .map(|(a, b)| *a as f64 * *b as f64)
+            .sum()
     };
-    // Steps per value: means in pixels, conics in pixels⁻² (about 0.01), colours and opacity.
-    let steps = [1e-2, 1e-2, 1e-4, 1e-4, 1e-4, 1e-2, 1e-2, 1e-2, 1e-3];
     for (i, g) in analytic.iter().enumerate() {
         let k = i % SPLAT_WIDTH;
         if k == 9 {
-            assert_eq!(*g, 0.0, "depth has no gradient");
+            assert_eq!(*g, 0.0, "{what}: depth has no gradient");
             continue;
         }
         let (mut plus, mut minus) = (rows.clone(), rows.clone());
-        plus[i] += steps[k];
-        minus[i] -= steps[k];
-        let numeric = (objective(&plus) - objective(&minus)) / (2.0 * steps[k] as f64);
+        plus[i] += STEPS[k];
+        minus[i] -= STEPS[k];
+        let numeric = (objective(&plus) - objective(&minus)) / (2.0 * STEPS[k] as f64);
         assert!(
             (numeric - *g as f64).abs() < 2e-2 * (1.0 + numeric.abs()),
-            "splat {} value {k}: numeric {numeric}, kernel {g}",
+            "{what}, splat {} value {k}: numeric {numeric}, analytic {g}",
             i / SPLAT_WIDTH
         );
     }
+}
+
+/// Central differences against the kernel's backward pass on [`smooth_scene`].
+#[test]
+fn kernel_gradients_match_central_differences() {
+    let (spec, rows) = smooth_scene();
+    let analytic = gradient(&rows, &spec, &weights(&spec), true);
+    check_central_differences("the CPU kernel", &analytic, |rows| {
+        let mut out = vec![0.0; spec.pixels() * PIXEL_WIDTH];
+        cpu::forward(rows, &spec, &mut out);
+        out
+    });
 }
