@@ -18,7 +18,7 @@ pub const NEAR: f32 = 0.01;
 pub const DILATION: f32 = 0.3;
 /// Off-screen means are clamped to this multiple of the image's half-extent before the Jacobian is taken
 /// (as 3DGS), so that Gaussians far outside the view do not turn into enormous splats.
-const FRUSTUM_MARGIN: f32 = 1.3;
+pub(super) const FRUSTUM_MARGIN: f32 = 1.3;
 
 /// One image of one frame: its camera (world frame), the frame's global transform (pose space → world)
 /// and where a pixel's ray passes through it (the run's convention, so that images line up with the
@@ -40,7 +40,7 @@ impl SplatView<'_> {
     }
 
     /// Pose space → camera frame, `x_cam = W x_pose + b`: the global transform then the camera's.
-    fn pose_to_camera(&self) -> (Mat3, Vec3) {
+    pub(super) fn pose_to_camera(&self) -> (Mat3, Vec3) {
         let (r, t) = (self.camera.rotation, self.camera.translation);
         let rh = self.global.rotation();
         (r * rh, r * self.global.th + t)

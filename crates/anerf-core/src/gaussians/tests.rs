@@ -431,3 +431,57 @@ fn pipeline_gradients_match_central_differences() {
         }
     }
 }
+
+/// The host projection gives the tensor projection's rows, for Gaussians skinned by four joints each, in
+/// both pixel conventions and with harmonics of degree 1.
+#[test]
+fn host_projection_matches_the_tensor_projection() {
+    let mut s = scene(11, 60, 1);
+    let mut joints = Vec::new();
+    let mut weights = Vec::new();
+    for w in &mut s.weights {
+        let mut order: Vec<usize> = (0..w.len()).collect();
+        order.sort_by(|&a, &b| w[b].total_cmp(&w[a]));
+        let top: [usize; 4] = [order[0], order[1], order[2], order[3]];
+        let sum: f32 = top.iter().map(|&j| w[j]).sum();
+        let kept = top.map(|j| w[j] / sum);
+        w.iter_mut().for_each(|v| *v = 0.0);
+        for (&j, &v) in top.iter().zip(&kept) {
+            w[j] = v;
+        }
+        joints.push(top.map(|j| j as u16));
+        weights.push(kept);
+    }
+    let h = &s.host;
+    let means: Vec<[f32; 3]> = h.means.iter().map(|v| v.to_array()).collect();
+    let log_scales: Vec<[f32; 3]> = h.log_scales.iter().map(|v| v.to_array()).collect();
+    let rotations: Vec<[f32; 4]> = h.rotations.iter().map(|q| [q.w, q.x, q.y, q.z]).collect();
+    let colours: Vec<f32> = h.colours.iter().flatten().copied().collect();
+    let cloud = HostCloud {
+        means: &means,
+        log_scales: &log_scales,
+        rotations: &rotations,
+        opacity_logits: &h.opacity_logits,
+        colours: &colours,
+        skin_joints: &joints,
+        skin_weights: &weights,
+    };
+    for convention in [PixelConvention::Integer, PixelConvention::Center] {
+        let tensor = s.project(convention);
+        let view = SplatView {
+            camera: &s.camera,
+            global: &s.global,
+            convention,
+        };
+        let host = project_host(&cloud, &s.bones, &view);
+        assert_eq!(host.len(), tensor.len());
+        for (i, (a, b)) in host.iter().zip(&tensor).enumerate() {
+            assert!(
+                (a - b).abs() <= 1e-4 * (1.0 + b.abs()),
+                "Gaussian {} value {}: host {a}, tensor {b}",
+                i / 10,
+                i % 10
+            );
+        }
+    }
+}

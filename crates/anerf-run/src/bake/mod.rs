@@ -11,10 +11,11 @@ pub mod store;
 
 use std::path::{Path, PathBuf};
 
-use anerf_core::gaussians::{render, GaussianCloud, SplatView};
+use anerf_core::gaussians::{project_host, render, GaussianCloud, SplatView};
 use anerf_core::geometry::{
     BoneMatrices, BoneTransforms, Camera, CanonicalPose, PixelConvention, Pose, Skeleton,
 };
+use anerf_core::kernels::splat::{self, PIXEL_WIDTH};
 use anerf_core::model::AnimatableNerf;
 use anerf_core::tensor::to_host;
 use anerf_core::FrameId;
@@ -150,24 +151,36 @@ fn training_shots(model: &AnimatableNerf, exp: &Experiment) -> Result<Vec<Shot>>
     Ok(shots)
 }
 
-/// A baked avatar on a device, ready to render.
+/// A baked avatar ready to draw: on the host where the run computes on the CPU (projected with glam and
+/// rasterised by the CPU kernel directly, no tensor operations), as tensors on GPU backends (the
+/// differentiable projection and the device's rasteriser).
 pub struct DeviceAvatar {
-    pub cloud: GaussianCloud,
-    /// Dense blend weights `[N, K]`.
-    pub skin: Tensor<2>,
+    form: Form,
+}
+
+enum Form {
+    Host(BakedAvatar),
+    Tensors {
+        cloud: GaussianCloud,
+        /// Dense blend weights `[N, K]`.
+        skin: Tensor<2>,
+    },
 }
 
 impl DeviceAvatar {
-    /// Uploads `avatar` to `device`.
+    /// `avatar` made ready on `device`.
     pub fn new(avatar: &BakedAvatar, device: &Device) -> Self {
-        Self {
-            cloud: avatar.cloud(device),
-            skin: avatar.skin(device),
-        }
+        let form = if anerf_device::runs_on_gpu(device) {
+            Form::Tensors {
+                cloud: avatar.cloud(device),
+                skin: avatar.skin(device),
+            }
+        } else {
+            Form::Host(avatar.clone())
+        };
+        Self { form }
     }
-}
 
-impl DeviceAvatar {
     /// The Gaussians posed by `pose` (through `skeleton`'s bones) seen by `camera`: `[H·W]` row-major colour
     /// on black and opacity, on the host. What a real-time viewer pays per image (posing, projection,
     /// rasterisation, read-back).
@@ -183,15 +196,26 @@ impl DeviceAvatar {
             global: &pose.global,
             convention: PixelConvention::Integer,
         };
-        let device = self.skin.device();
-        let flat = to_host(render(
-            &self.cloud,
-            self.skin.clone(),
-            &BoneMatrices::new(&bones, &device),
-            &view,
-        ));
+        let flat = match &self.form {
+            Form::Host(avatar) => {
+                let rows = project_host(&avatar.host_cloud(), &bones, &view);
+                let spec = view.spec();
+                let mut out = vec![0.0; spec.pixels() * PIXEL_WIDTH];
+                splat::cpu::forward(&rows, &spec, &mut out);
+                out
+            }
+            Form::Tensors { cloud, skin } => {
+                let device = skin.device();
+                to_host(render(
+                    cloud,
+                    skin.clone(),
+                    &BoneMatrices::new(&bones, &device),
+                    &view,
+                ))
+            }
+        };
         Ok(flat
-            .chunks_exact(4)
+            .chunks_exact(PIXEL_WIDTH)
             .map(|p| [p[0], p[1], p[2], p[3]])
             .collect())
     }

@@ -8,7 +8,7 @@
 use std::path::Path;
 
 use anerf_core::gaussians::sh;
-use anerf_core::gaussians::GaussianCloud;
+use anerf_core::gaussians::{GaussianCloud, HostCloud};
 use anerf_core::tensor::{from_rows, to_host};
 use anerf_data::atomic::{replace_dir, temp_dir_beside, write_bytes};
 use anerf_data::formats::ndarray::{ArrayData, NdArray};
@@ -19,7 +19,7 @@ use burn::prelude::*;
 use serde::{Deserialize, Serialize};
 
 /// Blend weights kept per Gaussian (as glTF keeps per vertex).
-pub const SKIN_SLOTS: usize = 4;
+pub use anerf_core::gaussians::host::SKIN_SLOTS;
 
 const INFO: &str = "avatar.json";
 const ARRAYS: [&str; 7] = [
@@ -64,6 +64,19 @@ pub struct BakedAvatar {
 }
 
 impl BakedAvatar {
+    /// The arrays as the host projection reads them.
+    pub fn host_cloud(&self) -> HostCloud<'_> {
+        HostCloud {
+            means: &self.means,
+            log_scales: &self.log_scales,
+            rotations: &self.rotations,
+            opacity_logits: &self.opacity_logits,
+            colours: &self.colours,
+            skin_joints: &self.skin_joints,
+            skin_weights: &self.skin_weights,
+        }
+    }
+
     /// The learnable cloud on `device`.
     pub fn cloud(&self, device: &Device) -> GaussianCloud {
         let n = self.means.len();

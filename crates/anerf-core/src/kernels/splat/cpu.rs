@@ -123,7 +123,7 @@ pub fn bin(splats: &[f32], spec: &RasterSpec) -> Bins {
 
 /// One splat's share of a pixel, as the compositing met it.
 #[derive(Debug, Clone, Copy)]
-struct Contribution {
+pub(super) struct Contribution {
     index: u32,
     /// The alpha composited (capped, at least [`ALPHA_MIN`]).
     alpha: f32,
@@ -139,7 +139,7 @@ struct Contribution {
 
 /// Composites pixel `(x, y)` from `list` (front to back), calling `visit` with each splat that contributes;
 /// returns the colour (without background) and the transmittance left.
-fn composite(
+pub(super) fn composite(
     splats: &[f32],
     list: &[u32],
     x: usize,
@@ -183,19 +183,95 @@ fn composite(
 }
 
 /// Renders the splats into `out` (`[H·W, PIXEL_WIDTH]`, row-major pixels): premultiplied colour and alpha.
+///
+/// Tile by tile, splat-major: each splat of a tile's front-to-back list visits only the tile's pixels inside
+/// its cut-off box that are still open, so a pixel meets the same splats in the same order with the same
+/// arithmetic as [`composite`] (which the backward pass replays) at a fraction of the tests.
 pub fn forward(splats: &[f32], spec: &RasterSpec, out: &mut [f32]) {
     let (w, h) = (spec.width as usize, spec.height as usize);
     assert_eq!(out.len(), w * h * PIXEL_WIDTH, "rasteriser output");
     let bins = bin(splats, spec);
-    let band = TILE as usize * w * PIXEL_WIDTH;
+    let n = splats.len() / SPLAT_WIDTH;
+    let boxes: Vec<Option<(Splat, [f32; 4])>> = (0..n)
+        .into_par_iter()
+        .map(|i| {
+            let s = Splat::read(splats, i);
+            let (ex, ey) = s.extent()?;
+            Some((
+                s,
+                [
+                    s.mean[0] - ex,
+                    s.mean[0] + ex,
+                    s.mean[1] - ey,
+                    s.mean[1] + ey,
+                ],
+            ))
+        })
+        .collect();
+    let tile = TILE as usize;
+    let band = tile * w * PIXEL_WIDTH;
     out.par_chunks_mut(band).enumerate().for_each(|(ty, rows)| {
-        for (r, row) in rows.chunks_mut(w * PIXEL_WIDTH).enumerate() {
-            let y = ty * TILE as usize + r;
-            for (x, pixel) in row.chunks_mut(PIXEL_WIDTH).enumerate() {
-                let list = bins.tile(x / TILE as usize, ty);
-                let (rgb, t) = composite(splats, list, x, y, |_| {});
-                pixel[..3].copy_from_slice(&rgb);
-                pixel[3] = 1.0 - t;
+        let rows_here = rows.len() / (w * PIXEL_WIDTH);
+        let mut open = [true; (TILE * TILE) as usize];
+        let mut acc = [[0.0f32; PIXEL_WIDTH]; (TILE * TILE) as usize];
+        for tx in 0..bins.tiles_x {
+            let (x0, y0) = (tx * tile, ty * tile);
+            let cols_here = tile.min(w - x0);
+            open.fill(true);
+            // Colour and transmittance per pixel of the tile.
+            acc.fill([0.0, 0.0, 0.0, 1.0]);
+            let mut remaining = cols_here * rows_here;
+            for &index in bins.tile(tx, ty) {
+                let Some((s, [lx, hx, ly, hy])) = &boxes[index as usize] else {
+                    continue;
+                };
+                // The tile's pixels inside the box (pixel (x, y) sits at the point (x, y)).
+                let span = |lo: f32, hi: f32, start: usize, len: usize| {
+                    let a = (lo.ceil().max(start as f32) as usize).max(start);
+                    let b = (hi.floor().min((start + len) as f32 - 1.0)) as isize;
+                    (a, b)
+                };
+                let (ax, bx) = span(*lx, *hx, x0, cols_here);
+                let (ay, by) = span(*ly, *hy, y0, rows_here);
+                for y in ay as isize..=by {
+                    for x in ax as isize..=bx {
+                        let k = (y as usize - y0) * tile + (x as usize - x0);
+                        if !open[k] {
+                            continue;
+                        }
+                        let (power, _, _) = s.power(x as f32, y as f32);
+                        if power > 0.0 {
+                            continue;
+                        }
+                        let alpha = (s.opacity * power.exp()).min(ALPHA_MAX);
+                        if alpha < ALPHA_MIN {
+                            continue;
+                        }
+                        let pixel = &mut acc[k];
+                        let t = pixel[3];
+                        let after = t * (1.0 - alpha);
+                        if after < T_MIN {
+                            open[k] = false;
+                            remaining -= 1;
+                            continue;
+                        }
+                        for (c, v) in pixel[..3].iter_mut().zip(s.colour) {
+                            *c += t * alpha * v;
+                        }
+                        pixel[3] = after;
+                    }
+                }
+                if remaining == 0 {
+                    break;
+                }
+            }
+            for r in 0..rows_here {
+                for c in 0..cols_here {
+                    let p = acc[r * tile + c];
+                    let at = (r * w + x0 + c) * PIXEL_WIDTH;
+                    rows[at..at + 3].copy_from_slice(&p[..3]);
+                    rows[at + 3] = 1.0 - p[3];
+                }
             }
         }
     });
