@@ -23,7 +23,7 @@ use anyhow::{bail, Context, Result};
 use burn::prelude::{Device, Tensor};
 
 use crate::memory::Work;
-use crate::mesh::{canonical_surface, MeshJob};
+use crate::mesh::{probed_surface, MeshJob};
 use crate::{device, newest_checkpoint, open_run, JobOptions};
 use anerf_train::experiment::Experiment;
 pub use export::{export_splats, PosedSplats, SplatExportJob, SplatExported};
@@ -72,7 +72,7 @@ pub fn bake(run_path: &Path, job: &BakeJob, options: &JobOptions) -> Result<Bake
     let seed = config.seed;
     let log_every = config.train.log_every;
     let exp = Experiment::open(config, device.clone(), options.progress)?;
-    let surface = canonical_surface(&model, &exp, &job.surface).context(
+    let (surface, probes) = probed_surface(&model, &exp, &job.surface).context(
         "the canonical surface the Gaussians start on (a run whose model has no density above the iso \
          level cannot be baked)",
     )?;
@@ -82,14 +82,6 @@ pub fn bake(run_path: &Path, job: &BakeJob, options: &JobOptions) -> Result<Bake
         .file_name()
         .map(|n| n.to_string_lossy().into_owned())
         .unwrap_or_default();
-    let probes = init::probe_along_normals(
-        &model,
-        exp.canonical(),
-        &surface.mesh.vertices,
-        &surface.mesh.vertex_normals(),
-        exp.train_frames.len() / 2,
-        exp.config.eval.chunk,
-    );
     let start = init::on_surface(
         &surface,
         &probes,

@@ -14,6 +14,7 @@ use crate::memory::Work;
 use crate::{device, load_trained, open_run, JobOptions};
 use anerf_train::experiment::Experiment;
 
+pub mod probe;
 mod skinned;
 mod surface;
 
@@ -93,13 +94,22 @@ pub fn mesh(run_path: &Path, job: &MeshJob, options: &JobOptions) -> Result<Mesh
     Ok(files)
 }
 
-/// The run's canonical mesh at `job`'s voxel, level and smoothing, with `w^can` and colours (the appearance
-/// code of the middle training frame) at its vertices.
+/// The run's canonical mesh at `job`'s voxel, level and smoothing, with `w^can` at its vertices and the
+/// colours the NeRF shows there (the appearance code of the middle training frame; [`probe`]).
 pub(crate) fn canonical_surface(
     model: &AnimatableNerf,
     exp: &Experiment,
     job: &MeshJob,
 ) -> Result<CanonicalMesh> {
+    Ok(probed_surface(model, exp, job)?.0)
+}
+
+/// [`canonical_surface`] and what each vertex's probe found.
+pub(crate) fn probed_surface(
+    model: &AnimatableNerf,
+    exp: &Experiment,
+    job: &MeshJob,
+) -> Result<(CanonicalMesh, Vec<probe::SurfaceProbe>)> {
     if !(job.voxel.is_finite() && job.voxel > 0.0) {
         bail!("--voxel {}: expected a positive size in metres", job.voxel);
     }
@@ -119,7 +129,20 @@ pub(crate) fn canonical_surface(
         cm.mesh.vertices =
             anerf_eval::mesh_smooth::smooth_vertices(&cm.mesh.vertices, &cm.mesh.faces, smoothing)?;
     }
-    Ok(cm)
+    let probes = probe::probe_along_normals(
+        model,
+        exp.canonical(),
+        &cm.mesh.vertices,
+        &cm.mesh.vertex_normals(),
+        appearance,
+        exp.config.eval.chunk,
+    );
+    for (colour, p) in cm.colors.iter_mut().zip(&probes) {
+        if p.opacity >= probe::PROBE_HIT {
+            *colour = p.colour;
+        }
+    }
+    Ok((cm, probes))
 }
 
 /// Writes `view` as PLY at `path` and as OBJ beside it.
