@@ -74,6 +74,32 @@ fn check_against(config: &ExperimentConfig, work: Work, available: u64) -> Resul
     Ok(())
 }
 
+/// Floats a bake holds per Gaussian, an upper bound: its 23 values (mean, log-scales, quaternion, opacity,
+/// degree-1 colours) with their gradient and Adam's two moments, a dense skin row of [`JOINTS`] weights,
+/// and the projection's intermediates kept for the backward pass (about 40 tensors of up to 12 values).
+const BAKE_FLOATS_PER_GAUSSIAN: u64 = 4 * 23 + JOINTS as u64 + 40 * 12;
+
+/// Fails, naming `--budget`, when a bake of `budget` Gaussians cannot fit in this machine's memory.
+pub fn check_bake(budget: usize) -> Result<()> {
+    let Some(available) = host_memory_bytes() else {
+        return Ok(());
+    };
+    check_bake_against(budget, available)
+}
+
+fn check_bake_against(budget: usize, available: u64) -> Result<()> {
+    let needed = (budget as u64).saturating_mul(BAKE_FLOATS_PER_GAUSSIAN * 4);
+    if needed > available {
+        bail!(
+            "--budget {budget}: a bake of that many Gaussians needs up to {:.1} GiB, more than this \
+             machine's {:.1} GiB of memory",
+            needed as f64 / (1u64 << 30) as f64,
+            available as f64 / (1u64 << 30) as f64
+        );
+    }
+    Ok(())
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -115,5 +141,16 @@ preset = "{name}"
             e.contains("train.batch") && e.contains("99999999999"),
             "{e}"
         );
+    }
+
+    #[test]
+    fn a_bake_budget_that_cannot_fit_is_refused() {
+        let machine = 16u64 << 30;
+        check_bake_against(50_000, machine).unwrap();
+        check_bake_against(1_000_000, machine).unwrap();
+        let e = check_bake_against(usize::MAX / 2, machine)
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("--budget") && e.contains("more than"), "{e}");
     }
 }

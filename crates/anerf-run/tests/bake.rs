@@ -133,6 +133,12 @@ fn a_baked_avatar_fits_the_training_views_and_evaluates_on_every_split() {
     assert!(err.contains("--overwrite"), "{err}");
     let err = format!("{:#}", bake(&run, &job(1, 1e12), &quiet()).unwrap_err());
     assert!(err.contains("cannot be baked"), "{err}");
+    let huge = BakeJob {
+        budget: usize::MAX / 2,
+        ..job(1, 0.0)
+    };
+    let err = format!("{:#}", bake(&run, &huge, &quiet()).unwrap_err());
+    assert!(err.contains("--budget") && err.contains("memory"), "{err}");
     // The refused bakes left the avatar in place.
     assert!(BakedAvatar::load(&run.join("baked")).is_ok());
 }

@@ -61,6 +61,7 @@ pub fn bake(run_path: &Path, job: &BakeJob, options: &JobOptions) -> Result<Bake
     if job.budget == 0 || job.iterations == 0 {
         bail!("--budget and --iterations must be at least 1");
     }
+    crate::memory::check_bake(job.budget)?;
     let (run, config) = open_run(run_path, options, Work::Render)?;
     let dir = run.baked();
     if dir.exists() && !job.overwrite {
