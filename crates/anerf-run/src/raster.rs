@@ -3,7 +3,9 @@
 //! there, the others are black, with the dataset's ground truth and mask, so that `eval` and `render` treat
 //! them as they treat the NeRF's renders.
 
-use anerf_core::geometry::{Camera, CanonicalPose, PixelConvention, Pose, Skeleton};
+use anerf_core::geometry::{
+    BoneTransforms, Camera, CanonicalPose, GlobalTransform, PixelConvention,
+};
 use anerf_core::model::AnimatableNerf;
 use anerf_core::{FrameId, ViewId};
 use anerf_train::experiment::Experiment;
@@ -90,16 +92,17 @@ impl Skinned {
         }
     }
 
-    /// The avatar posed by `pose` seen by `camera`: `[H·W]` row-major colour on black and opacity.
-    pub fn pose_pixels(
+    /// The avatar posed by `bones` (canonical → pose space) and `global` (pose space → world) seen by
+    /// `camera`: `[H·W]` row-major colour on black and opacity.
+    pub fn pixels(
         &self,
-        skeleton: &Skeleton,
-        pose: &Pose,
+        bones: &BoneTransforms,
+        global: &GlobalTransform,
         camera: &Camera,
     ) -> Result<Vec<[f32; 4]>> {
         match self {
-            Self::Gaussians(g) => g.pose_pixels(skeleton, pose, camera),
-            Self::Mesh(m) => m.pose_pixels(skeleton, pose, camera),
+            Self::Gaussians(g) => Ok(g.pixels(bones, global, camera)),
+            Self::Mesh(m) => m.pixels(bones, global, camera),
         }
     }
 
@@ -113,8 +116,8 @@ impl Skinned {
         camera: &Camera,
         view: Option<ViewId>,
     ) -> Result<RenderedImage> {
-        let pose = exp.frame_pose(model, frame)?;
-        let pixels = self.pose_pixels(&exp.prepared.skeleton, &pose, camera)?;
+        let (pose, bones) = bake::frame_bones(model, exp, frame)?;
+        let pixels = self.pixels(&bones, &pose.global, camera)?;
         boxed_image(exp, frame, camera, view, &pixels)
     }
 }
@@ -146,7 +149,7 @@ pub(crate) fn skinned_motion(
         let center = joints.iter().sum::<Vec3>() / joints.len().max(1) as f32;
         let camera = seen.camera(i, n, center);
         let pixels = avatar
-            .pose_pixels(skeleton, pose, &camera)
+            .pixels(&bones, &pose.global, &camera)
             .with_context(|| format!("rendering frame {i} of motion {}", clip.name))?;
         let rgb: Vec<f32> = pixels.iter().flat_map(|p| [p[0], p[1], p[2]]).collect();
         images.push(

@@ -13,7 +13,7 @@ use std::path::{Path, PathBuf};
 
 use anerf_core::gaussians::{project_host, render, GaussianCloud, SplatView};
 use anerf_core::geometry::{
-    BoneMatrices, BoneTransforms, Camera, CanonicalPose, PixelConvention, Pose, Skeleton,
+    BoneMatrices, BoneTransforms, Camera, CanonicalPose, GlobalTransform, PixelConvention, Pose,
 };
 use anerf_core::kernels::splat::{self, PIXEL_WIDTH};
 use anerf_core::model::AnimatableNerf;
@@ -110,7 +110,7 @@ pub fn bake(run_path: &Path, job: &BakeJob, options: &JobOptions) -> Result<Bake
 
 /// Frame `frame`'s pose as the NeRF renders it (the refined fit where the model refines training frames)
 /// and its bone transforms (canonical → pose space).
-fn frame_bones(
+pub(crate) fn frame_bones(
     model: &AnimatableNerf,
     exp: &Experiment,
     frame: FrameId,
@@ -174,24 +174,23 @@ impl DeviceAvatar {
         Self { form }
     }
 
-    /// The Gaussians posed by `pose` (through `skeleton`'s bones) seen by `camera`: `[H·W]` row-major colour
-    /// on black and opacity, on the host. What a real-time viewer pays per image (posing, projection,
-    /// rasterisation, read-back).
-    pub fn pose_pixels(
+    /// The Gaussians posed by `bones` (canonical → pose space) and `global` (pose space → world) seen by
+    /// `camera`: `[H·W]` row-major colour on black and opacity, on the host. What a real-time viewer pays
+    /// per image (posing, projection, rasterisation, read-back).
+    pub fn pixels(
         &self,
-        skeleton: &Skeleton,
-        pose: &Pose,
+        bones: &BoneTransforms,
+        global: &GlobalTransform,
         camera: &Camera,
-    ) -> Result<Vec<[f32; 4]>> {
-        let bones = skeleton.bone_transforms(pose, CanonicalPose::TPose)?;
+    ) -> Vec<[f32; 4]> {
         let view = SplatView {
             camera,
-            global: &pose.global,
+            global,
             convention: PixelConvention::Integer,
         };
         let flat = match &self.form {
             Form::Host(avatar) => {
-                let rows = project_host(&avatar.host_cloud(), &bones, &view);
+                let rows = project_host(&avatar.host_cloud(), bones, &view);
                 let spec = view.spec();
                 let mut out = vec![0.0; spec.pixels() * PIXEL_WIDTH];
                 splat::cpu::forward(&rows, &spec, &mut out);
@@ -202,15 +201,14 @@ impl DeviceAvatar {
                 to_host(render(
                     cloud,
                     skin.clone(),
-                    &BoneMatrices::new(&bones, &device),
+                    &BoneMatrices::new(bones, &device),
                     &view,
                 ))
             }
         };
-        Ok(flat
-            .chunks_exact(PIXEL_WIDTH)
+        flat.chunks_exact(PIXEL_WIDTH)
             .map(|p| [p[0], p[1], p[2], p[3]])
-            .collect())
+            .collect()
     }
 }
 

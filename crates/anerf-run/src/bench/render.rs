@@ -15,7 +15,7 @@ use anyhow::{Context, Result};
 use burn::prelude::Device;
 
 use super::{median, peak_memory_mib, reset_peak_memory, BenchJob, RenderFigures, WARM_RENDERS};
-use crate::bake::{BakedAvatar, DeviceAvatar};
+use crate::bake::{self, BakedAvatar, DeviceAvatar};
 use crate::load_trained;
 
 /// Renders one `size`×`size` view of the demo subject (or of `job.run`'s subject with its model, and with
@@ -58,8 +58,8 @@ pub(crate) fn time_render(
         let started = Instant::now();
         Ok(match gaussians {
             Some(avatar) => {
-                let pose = exp.frame_pose(&model, frame)?;
-                avatar.pose_pixels(&exp.prepared.skeleton, &pose, &camera)?;
+                let (pose, bones) = bake::frame_bones(&model, exp, frame)?;
+                avatar.pixels(&bones, &pose.global, &camera);
                 Timed {
                     seconds: started.elapsed().as_secs_f64(),
                     rays: (camera.width * camera.height) as usize,

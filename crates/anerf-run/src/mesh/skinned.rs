@@ -2,7 +2,7 @@
 //! and the four largest canonical blend weights of each vertex (what `anerf export` writes into the glb),
 //! posed by linear blend skinning and rasterised without lighting (`anerf eval --mesh`).
 
-use anerf_core::geometry::{Camera, CanonicalPose, PixelConvention, Pose, Skeleton};
+use anerf_core::geometry::{BoneTransforms, Camera, GlobalTransform, PixelConvention};
 use anerf_core::mesh::TriMesh;
 use anerf_core::model::AnimatableNerf;
 use anerf_eval::gltf_export::top_weights;
@@ -42,16 +42,15 @@ impl SkinnedSurface {
         })
     }
 
-    /// The mesh posed by `pose` (through `skeleton`'s bones) seen by `camera`: `[H·W]` row-major colour on
-    /// black and coverage.
-    pub fn pose_pixels(
+    /// The mesh posed by `bones` (canonical → pose space) and `global` (pose space → world) seen by
+    /// `camera`: `[H·W]` row-major colour on black and coverage.
+    pub fn pixels(
         &self,
-        skeleton: &Skeleton,
-        pose: &Pose,
+        bones: &BoneTransforms,
+        global: &GlobalTransform,
         camera: &Camera,
     ) -> Result<Vec<[f32; 4]>> {
-        let bones = skeleton.bone_transforms(pose, CanonicalPose::TPose)?;
-        let posed = repose(&self.mesh.vertices, &self.weights, &bones, &pose.global)?;
+        let posed = repose(&self.mesh.vertices, &self.weights, bones, global)?;
         Ok(rasterize_mesh(
             &posed,
             &self.mesh.faces,

@@ -227,15 +227,13 @@ pub fn forward(splats: &[f32], spec: &RasterSpec, out: &mut [f32]) {
                 };
                 // The tile's pixels inside the box (pixel (x, y) sits at the point (x, y)).
                 let span = |lo: f32, hi: f32, start: usize, len: usize| {
-                    let a = (lo.ceil().max(start as f32) as usize).max(start);
-                    let b = (hi.floor().min((start + len) as f32 - 1.0)) as isize;
-                    (a, b)
+                    let first = lo.ceil().max(start as f32);
+                    let last = hi.floor().min((start + len - 1) as f32);
+                    first as usize..(last + 1.0).max(first) as usize
                 };
-                let (ax, bx) = span(*lx, *hx, x0, cols_here);
-                let (ay, by) = span(*ly, *hy, y0, rows_here);
-                for y in ay as isize..=by {
-                    for x in ax as isize..=bx {
-                        let k = (y as usize - y0) * tile + (x as usize - x0);
+                for y in span(*ly, *hy, y0, rows_here) {
+                    for x in span(*lx, *hx, x0, cols_here) {
+                        let k = (y - y0) * tile + (x - x0);
                         if !open[k] {
                             continue;
                         }
