@@ -130,7 +130,7 @@ fn main() {
     let t = Instant::now();
     let n = 50;
     for _ in 0..n {
-        sampler.sample(&view).expect("rays");
+        sampler.sample(&view, 1024).expect("rays");
     }
     println!(
         "training rays: 1024 rays from a 512² image in {:.1} ms",

@@ -150,18 +150,31 @@ impl RaySampler {
         }
     }
 
-    /// Picks a training image uniformly over `frames × views`, as the reference's loader does.
-    pub fn pick(&mut self, frames: &[FrameId], views: &[ViewId]) -> Option<(FrameId, ViewId)> {
-        if frames.is_empty() || views.is_empty() {
+    /// Picks a training frame and `count` distinct views of it: the first image uniformly over
+    /// `frames × views`, as the reference's loader does (so one view a step draws the reference's stream),
+    /// the others uniformly among the frame's remaining views. `None` without frames, or with fewer views
+    /// than `count` (or `count = 0`).
+    pub fn pick(
+        &mut self,
+        frames: &[FrameId],
+        views: &[ViewId],
+        count: usize,
+    ) -> Option<(FrameId, Vec<ViewId>)> {
+        if frames.is_empty() || count == 0 || count > views.len() {
             return None;
         }
         let i = self.rng.random_range(0..frames.len() * views.len());
-        Some((frames[i / views.len()], views[i % views.len()]))
+        let mut rest: Vec<ViewId> = views.to_vec();
+        let mut picked = vec![rest.remove(i % views.len())];
+        for _ in 1..count {
+            picked.push(rest.swap_remove(self.rng.random_range(0..rest.len())));
+        }
+        Some((frames[i / views.len()], picked))
     }
 
-    /// Exactly `options.rays` rays of one image, with target colours (background and outside-box pixels
-    /// black) and pixel coordinates.
-    pub fn sample(&mut self, view: &ImageView) -> Result<HostRays, SamplerError> {
+    /// Exactly `n` rays of one image, with target colours (background and outside-box pixels black) and
+    /// pixel coordinates.
+    pub fn sample(&mut self, view: &ImageView, n: usize) -> Result<HostRays, SamplerError> {
         let (w, _) = check_sizes(view)?;
         let bound = box_mask(view.camera, view.bounds);
         let mut classes: Vec<u8> = view
@@ -206,7 +219,6 @@ impl RaySampler {
             }
         };
         let hit_box = view.bounds.padded(self.options.near_far_padding);
-        let n = self.options.rays;
         let mut out = HostRays::default();
         for _round in 0..ROUNDS {
             let left = n - out.len();
@@ -244,26 +256,37 @@ impl RaySampler {
         }
     }
 
-    /// Reads frame × view of a prepared subject and draws its rays.
+    /// Reads `views` of one frame of a prepared subject and draws `options.rays` rays from them, split as
+    /// evenly as whole rays allow (the first views take the remainder), concatenated view after view.
     pub fn sample_prepared(
         &mut self,
         subject: &PreparedSubject,
         frame: FrameId,
-        view: ViewId,
+        views: &[ViewId],
     ) -> Result<HostRays, SamplerError> {
-        let image = subject.image(frame, view)?;
-        let (mask, edge) = subject.mask_and_edge(frame, view)?;
         let bounds = subject
             .frame(frame)
             .ok_or_else(|| DataError::invalid(&subject.dir, format!("{frame} was not prepared")))?
             .bounds;
-        self.sample(&ImageView {
-            camera: &subject.cameras[view.0],
-            bounds: &bounds,
-            image: &image,
-            mask: &mask,
-            edge: Some(&edge),
-        })
+        let total = self.options.rays;
+        let mut out = HostRays::default();
+        for (k, &view) in views.iter().enumerate() {
+            let n = total / views.len() + usize::from(k < total % views.len());
+            let image = subject.image(frame, view)?;
+            let (mask, edge) = subject.mask_and_edge(frame, view)?;
+            let rays = self.sample(
+                &ImageView {
+                    camera: &subject.cameras[view.0],
+                    bounds: &bounds,
+                    image: &image,
+                    mask: &mask,
+                    edge: Some(&edge),
+                },
+                n,
+            )?;
+            out.append(rays);
+        }
+        Ok(out)
     }
 }
 

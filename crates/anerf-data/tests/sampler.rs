@@ -106,7 +106,7 @@ fn training_rays_follow_the_reference_scheme() {
         ..SamplerOptions::default()
     };
     let mut sampler = RaySampler::new(11, options.clone());
-    let rays = sampler.sample_prepared(&p, frame, view).unwrap();
+    let rays = sampler.sample_prepared(&p, frame, &[view]).unwrap();
     assert_eq!(rays.len(), 500);
     let mut on_body = 0;
     for k in 0..rays.len() {
@@ -147,7 +147,7 @@ fn a_trained_band_is_drawn_with_the_masks_labels_and_marked() {
             ..SamplerOptions::default()
         };
         RaySampler::new(5, options)
-            .sample_prepared(&p, frame, view)
+            .sample_prepared(&p, frame, &[view])
             .unwrap()
     };
     let rays = draw(MaskEdges::Train);
@@ -182,8 +182,8 @@ fn sampling_is_deterministic_and_resumes_from_serialised_state() {
     let run = |sampler: &mut RaySampler, n: usize| {
         (0..n)
             .map(|_| {
-                let (f, v) = sampler.pick(&frames, &views).unwrap();
-                sampler.sample_prepared(&p, f, v).unwrap()
+                let (f, v) = sampler.pick(&frames, &views, 2).unwrap();
+                sampler.sample_prepared(&p, f, &v).unwrap()
             })
             .collect::<Vec<_>>()
     };
@@ -224,4 +224,59 @@ fn evaluation_ground_truth_blacks_out_background_and_outside_box() {
         assert_eq!(r.rays.colors[k], gt.get_pixel(*u, *v).0);
     }
     assert!(r.rays.len() > 100 && r.rays.len() < (cam.width * cam.height) as usize);
+}
+
+/// Several views a step: distinct views of one frame, the first drawn as one view a step draws it (the
+/// reference's stream), the rays split evenly in view order, each view's rays leaving its own camera.
+#[test]
+fn several_views_a_step_draw_distinct_views_of_one_frame_split_evenly() {
+    let dir = tempfile::tempdir().unwrap();
+    let p = prepared(dir.path());
+    let frames = [FrameId(0), FrameId(1)];
+    let views: Vec<ViewId> = p.views.clone();
+    assert!(views.len() >= 3, "the fixture has {} views", views.len());
+    let options = SamplerOptions {
+        rays: 100,
+        ..SamplerOptions::default()
+    };
+    let (mut one, mut three) = (
+        RaySampler::new(7, options.clone()),
+        RaySampler::new(7, options.clone()),
+    );
+    let mut seen = std::collections::BTreeSet::new();
+    for _ in 0..20 {
+        let (f1, v1) = one.pick(&frames, &views, 1).unwrap();
+        let (f3, v3) = three.pick(&frames, &views, 3).unwrap();
+        assert_eq!(
+            (f1, v1[0]),
+            (f3, v3[0]),
+            "the first view is the one-view stream's"
+        );
+        let distinct: std::collections::BTreeSet<_> = v3.iter().collect();
+        assert_eq!(distinct.len(), 3, "views {v3:?} repeat");
+        assert!(v3.iter().all(|v| views.contains(v)));
+        seen.extend(v3[1..].iter().copied());
+        // Keep the two streams aligned: the three-view pick drew two more numbers.
+        let rays = three.sample_prepared(&p, f3, &v3).unwrap();
+        assert_eq!(rays.len(), 100);
+        for (k, range) in [(0, 0..34), (1, 34..67), (2, 67..100)] {
+            let centre = p.cameras[v3[k].0].center();
+            for i in range {
+                let o = glam::Vec3::from(rays.origins[i]);
+                assert!(
+                    (o - centre).length() < 1e-4,
+                    "ray {i} of view {:?} leaves {o}, not its camera at {centre}",
+                    v3[k]
+                );
+            }
+        }
+        one = three.clone();
+    }
+    assert_eq!(
+        seen.len(),
+        views.len(),
+        "every view is drawn as a further view"
+    );
+    assert!(one.pick(&frames, &views, views.len() + 1).is_none());
+    assert!(one.pick(&frames, &views, 0).is_none());
 }

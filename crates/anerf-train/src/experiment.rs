@@ -280,6 +280,7 @@ impl Experiment {
                 code,
                 appearance,
                 basis,
+                warp: None,
             };
             self.frames.insert((replica, id), inputs);
         }

@@ -318,6 +318,12 @@ impl VolumeTensor {
         self.host.is_near(p, threshold)
     }
 
+    /// Adds the prior weights at one host point (the volume's frame, metres) to `out` (`K` long, zero on
+    /// entry).
+    pub(crate) fn weights_into(&self, p: Vec3, out: &mut [f32]) {
+        self.host.volume.accumulate(p, out);
+    }
+
     /// Prior weights `[N, K]` at host points (the volume's frame, metres) that need no gradient, such as the
     /// renderer's samples: interpolated on the host (as [`BlendWeightVolume::sample`]) and uploaded, instead
     /// of the few dozen tensor operations of [`Self::sample`].

@@ -6,7 +6,7 @@ use burn::tensor::IndexingUpdateOp;
 use glam::Vec3;
 
 use super::blend::BlendWeightField;
-use super::culling::{cull_on_device, cull_samples, Culling, SampleRays};
+use super::culling::{cull_on_device, cull_samples, CorrectionWarp, Culling, SampleRays};
 use super::nerf::CanonicalNerf;
 use super::occupancy::OccupancyGrid;
 use super::pose_refinement::PoseRefinement;
@@ -53,6 +53,9 @@ pub struct FrameInputs {
     /// The frame's given fit for corrected bones, where the model refines training frames' fits
     /// ([`AnimatableNerf::pose`]); `None` renders with `bones` as given.
     pub basis: Option<PoseBasis>,
+    /// Set by [`AnimatableNerf::posed_frame`] once `bones` carry a refinement's correction: how the
+    /// correction moved the body, so that culling keeps the samples near the body where it now is.
+    pub warp: Option<CorrectionWarp>,
 }
 
 /// The canonical body: its blend-weight volume and its box (T-pose vertices ± padding, metres).
@@ -299,8 +302,10 @@ impl AnimatableNerf {
             return None;
         };
         let c = pose.frame(f);
+        let bones = basis.bones(c.joints, c.rotation, c.translation);
         Some(FrameInputs {
-            bones: basis.bones(c.joints, c.rotation, c.translation),
+            warp: Some(CorrectionWarp::new(&frame.bones, &bones)),
+            bones,
             basis: None,
             ..frame.clone()
         })
@@ -529,6 +534,7 @@ impl AnimatableNerf {
                     &frame.global,
                     &frame.volume,
                     self.config.cull_distance,
+                    frame.warp.as_ref(),
                 );
                 let (rows, shaded) = self.shade_points(
                     survivors.points,
@@ -563,6 +569,7 @@ impl AnimatableNerf {
                     &frame.global,
                     &frame.volume,
                     self.config.cull_distance,
+                    frame.warp.as_ref().map(CorrectionWarp::to_host).as_ref(),
                 );
                 let (rows, shaded) =
                     self.shade_survivors(&survivors.points, survivors.directions, frame, canonical);

@@ -8,8 +8,84 @@ use glam::Vec3;
 use rayon::prelude::*;
 
 use crate::geometry::skinning::world_to_pose;
-use crate::geometry::{GlobalTransform, VolumeTensor};
+use crate::geometry::{BoneMatrices, GlobalTransform, VolumeTensor};
 use crate::render::RayBatch;
+use crate::tensor::to_host;
+
+/// Where a pose refinement moved the body, for culling: per bone the rigid motion `D_k = A_k · Â_k⁻¹`
+/// (pose space of the given fit, `[K, 12]` top rows of 4×4, row-major) that carries a point of the body
+/// where the corrected bones `Â_k` put it back to where the given bones `A_k` have it. A frame's volume
+/// measures distance to the *given* body; a sample `x` is also kept when `Σ_k w_k(x) D_k x` (blended by the
+/// prior weights at `x`) lies near it, i.e. when it lies near the *corrected* body, which a refinement may
+/// have moved by more than `cull_distance` (under fits 4 cm off, a quarter of the body's vertices lie farther
+/// than 5 cm from where the fit has them, a hand up to 20 cm). No gradient flows through culling.
+#[derive(Debug, Clone)]
+pub struct CorrectionWarp {
+    rows: Tensor<2>,
+}
+
+impl CorrectionWarp {
+    /// The motions from `corrected` bones back to `given` ones (both rigid, canonical → pose space).
+    pub fn new(given: &BoneMatrices, corrected: &BoneMatrices) -> Self {
+        let k = given.num_joints();
+        let split = |b: &BoneMatrices| {
+            let m = b.rows().detach().reshape([k, 3, 4]);
+            (m.clone().narrow(2, 0, 3), m.narrow(2, 3, 1))
+        };
+        let ((r, t), (r_hat, t_hat)) = (split(given), split(corrected));
+        // A Â⁻¹ = [R R̂ᵀ | t − R R̂ᵀ t̂] for rigid bones.
+        let rotation = r.matmul(r_hat.swap_dims(1, 2));
+        let translation = t - rotation.clone().matmul(t_hat);
+        Self {
+            rows: Tensor::cat(vec![rotation, translation], 2).reshape([k, 12]),
+        }
+    }
+
+    /// The `[K, 12]` motions.
+    pub fn rows(&self) -> Tensor<2> {
+        self.rows.clone()
+    }
+
+    /// The motions on the host, for [`cull_samples`].
+    pub fn to_host(&self) -> HostWarp {
+        HostWarp {
+            rows: to_host(self.rows.clone())
+                .chunks_exact(12)
+                .map(|r| r.try_into().expect("12 values a bone"))
+                .collect(),
+        }
+    }
+
+    /// Points `[N, 3]` carried back by the motions blended with `weights` (`[N, K]`).
+    fn apply(&self, points: Tensor<2>, weights: Tensor<2>) -> Tensor<2> {
+        BoneMatrices::from_rows(self.rows()).forward(points, weights)
+    }
+}
+
+/// [`CorrectionWarp`] on the host.
+#[derive(Debug, Clone, PartialEq)]
+pub struct HostWarp {
+    rows: Vec<[f32; 12]>,
+}
+
+impl HostWarp {
+    /// `Σ_k w_k D_k p` with the prior weights `w` at `p` (`scratch` holds them, `K` long).
+    fn apply(&self, volume: &VolumeTensor, p: Vec3, scratch: &mut [f32]) -> Vec3 {
+        scratch.fill(0.0);
+        volume.weights_into(p, scratch);
+        let mut m = [0.0f32; 12];
+        for (w, row) in scratch.iter().zip(&self.rows) {
+            for (a, b) in m.iter_mut().zip(row) {
+                *a += w * b;
+            }
+        }
+        Vec3::new(
+            m[0] * p.x + m[1] * p.y + m[2] * p.z + m[3],
+            m[4] * p.x + m[5] * p.y + m[6] * p.z + m[7],
+            m[8] * p.x + m[9] * p.y + m[10] * p.z + m[11],
+        )
+    }
+}
 
 /// The pose-space positions `[R·S, 3]` (metres, ray-major) of the samples along `rays` at `depths` (`[R, S]`,
 /// metres along each ray): `x_pose = R_hᵀ (o + z·d − T_h)`.
@@ -76,12 +152,14 @@ pub struct Survivors {
 
 /// Places the samples of `rays` in pose space (`x_pose = R_hᵀ (o + z·d − T_h)`) and keeps those closer than
 /// `threshold` to the body by the host copy of the frame volume's distance channel
-/// ([`VolumeTensor::is_near`]); when none is, the closest sample (as [`surviving_indices`]).
+/// ([`VolumeTensor::is_near`]), or, with a `warp`, closer to the body where the refinement moved it
+/// ([`CorrectionWarp`]); when none is, the closest sample to the given body (as [`surviving_indices`]).
 pub fn cull_samples(
     rays: &SampleRays,
     global: &GlobalTransform,
     volume: &VolumeTensor,
     threshold: f32,
+    warp: Option<&HostWarp>,
 ) -> Survivors {
     let rotation_t = global.rotation().transpose();
     let s = rays.samples;
@@ -92,12 +170,19 @@ pub fn cull_samples(
             * (ray_vec(rays.origins, r) + ray_vec(rays.directions, r) * rays.depths[i] - global.th)
     };
     let n = rays.depths.len();
+    let k = volume.num_joints();
     let mut near: Vec<(i64, Vec3)> = (0..n)
         .into_par_iter()
-        .filter_map(|i| {
-            let p = pose(i);
-            volume.is_near(p, threshold).then_some((i as i64, p))
-        })
+        .map_init(
+            || vec![0.0f32; k],
+            |scratch, i| {
+                let p = pose(i);
+                let kept = volume.is_near(p, threshold)
+                    || warp.is_some_and(|w| volume.is_near(w.apply(volume, p, scratch), threshold));
+                kept.then_some((i as i64, p))
+            },
+        )
+        .flatten()
         .collect();
     if near.is_empty() && n > 0 {
         let distance: Vec<f32> = (0..n)
@@ -140,9 +225,10 @@ pub fn surviving_indices(distance: &[f32], threshold: f32) -> Vec<i64> {
 }
 
 /// [`cull_samples`] on the device, for the GPU backends: the samples along `rays` at `depths` (`[R, S]`,
-/// metres) placed in pose space by `global`, their distance to the body looked up in the frame's `volume`,
-/// and those closer than `cull_distance` (metres; or else the closest) selected with their view directions
-/// and prior weights. Only the survivors' indices cross to the host and back (their count fixes the batch's
+/// metres) placed in pose space by `global`, their distance to the body looked up in the frame's `volume`
+/// (with a `warp`, the lesser of it and the distance to the corrected body), and those closer than
+/// `cull_distance` (metres; or else the closest to the given body) selected with their view directions and
+/// prior weights. Only the survivors' indices cross to the host and back (their count fixes the batch's
 /// shape); the rays, depths and survivors stay on the device.
 pub(super) fn cull_on_device(
     rays: &RayBatch,
@@ -150,11 +236,23 @@ pub(super) fn cull_on_device(
     global: &GlobalTransform,
     volume: &VolumeTensor,
     cull_distance: f32,
+    warp: Option<&CorrectionWarp>,
 ) -> DeviceSurvivors {
     let [r, s] = depths.dims();
     let pose = pose_samples(rays, depths, global);
     let distance = volume.sample_distance(pose.clone()).reshape([r * s]);
-    let near = distance.clone().lower_elem(cull_distance).argwhere();
+    let near = match warp {
+        None => distance.clone().lower_elem(cull_distance),
+        Some(warp) => {
+            let carried = warp.apply(pose.clone(), volume.sample(pose.clone()).weights);
+            let moved = volume.sample_distance(carried).reshape([r * s]);
+            distance
+                .clone()
+                .lower_elem(cull_distance)
+                .bool_or(moved.lower_elem(cull_distance))
+        }
+    }
+    .argwhere();
     let index = match near.dims() {
         [0, _] => distance.argmin(0),
         [m, _] => near.reshape([m]),

@@ -6,7 +6,7 @@
 use glam::Vec3;
 
 use super::animatable::{AnimatableNerf, CanonicalInputs, FrameInputs};
-use super::culling::{cull_samples, SampleRays};
+use super::culling::{cull_samples, CorrectionWarp, SampleRays};
 use crate::render::{sample_fractions, HostRays};
 use crate::tensor::to_host;
 
@@ -65,6 +65,7 @@ impl AnimatableNerf {
             &frame.global,
             &frame.volume,
             self.config().cull_distance,
+            frame.warp.as_ref().map(CorrectionWarp::to_host).as_ref(),
         );
         // Survivors are ordered by ray, then depth: ray `q`'s are `starts[q]..starts[q + 1]`.
         let mut starts = vec![0usize; r + 1];

@@ -6,7 +6,7 @@ use burn::optim::GradientsParams;
 use burn::prelude::*;
 use glam::Vec3;
 
-use super::culling::{cull_on_device, cull_samples, pose_samples, SampleRays};
+use super::culling::{cull_on_device, cull_samples, pose_samples, CorrectionWarp, SampleRays};
 use super::*;
 use crate::geometry::skinning::{points_tensor, BoneMatrices};
 use crate::geometry::BlendWeightVolume;
@@ -15,7 +15,7 @@ use crate::geometry::{
 };
 use crate::render::{color_mse, composite, stratified_depths, HostRays, RayBatch};
 use crate::tensor::{from_rows, parameter_gradients, to_host};
-use crate::{FrameId, ViewId};
+use crate::FrameId;
 use anerf_device::cpu_device;
 
 const JOINTS: [[f32; 3]; 4] = [
@@ -90,6 +90,7 @@ fn scene(device: &Device, code: FrameCode) -> Scene {
         code,
         appearance: 1,
         basis: None,
+        warp: None,
     };
     let canonical = CanonicalInputs {
         volume: host_volume.to_tensor(device),
@@ -114,7 +115,7 @@ fn scene(device: &Device, code: FrameCode) -> Scene {
     host.colors = (0..host.len())
         .map(|i| [0.1 * (i % 7) as f32, 0.5, 0.9 - 0.05 * (i % 5) as f32])
         .collect();
-    let rays = RayBatch::new(&host, FrameId(1), ViewId(0), device);
+    let rays = RayBatch::new(&host, FrameId(1), device);
     Scene {
         frame,
         canonical,
@@ -368,9 +369,26 @@ fn culling_matches_evaluating_every_sample_and_zeroing_the_far_ones() {
     assert!(b.iter().any(|v| *v > 1e-3), "the scene renders something");
 }
 
+/// Bones that move the scene's body by `shift` (pose space of the given fit, metres): each of `given`'s
+/// followed by a translation.
+fn shifted_bones(
+    given: &crate::geometry::BoneTransforms,
+    shift: Vec3,
+) -> crate::geometry::BoneTransforms {
+    crate::geometry::BoneTransforms::from_matrices(
+        given
+            .matrices()
+            .iter()
+            .map(|m| glam::Mat4::from_translation(shift) * *m)
+            .collect(),
+    )
+    .unwrap()
+}
+
 /// The GPU backends' culling on the device keeps the host culling's samples, in the same order, at the same
-/// pose-space positions, with the same view directions and prior weights (both run here on flex); for rays
-/// turned away from the body, both keep the closest sample alone.
+/// pose-space positions, with the same view directions and prior weights (both run here on flex), with and
+/// without a refinement's [`CorrectionWarp`]; for rays turned away from the body, both keep the closest
+/// sample alone.
 #[test]
 fn culling_on_the_device_keeps_the_host_cullings_samples() {
     let device = cpu_device();
@@ -381,9 +399,17 @@ fn culling_on_the_device_keeps_the_host_cullings_samples() {
         directions: -s.rays.directions.clone(),
         ..s.rays.clone()
     };
-    for (name, rays, turned_away) in [
-        ("the scene's rays", &s.rays, false),
-        ("rays turned away", &away, true),
+    let moved = BoneMatrices::new(&shifted_bones(&s.bones, Vec3::new(0.12, 0.0, 0.0)), &device);
+    let warp = CorrectionWarp::new(&s.frame.bones, &moved);
+    for (name, rays, turned_away, warp) in [
+        ("the scene's rays", &s.rays, false, None),
+        (
+            "the scene's rays, a moved body",
+            &s.rays,
+            false,
+            Some(&warp),
+        ),
+        ("rays turned away", &away, true, None),
     ] {
         let samples = model.config().samples_per_ray;
         let depths = stratified_depths(rays.near.clone(), rays.far.clone(), samples, None);
@@ -393,6 +419,7 @@ fn culling_on_the_device_keeps_the_host_cullings_samples() {
             &s.frame.global,
             &s.frame.volume,
             model.config().cull_distance,
+            warp,
         );
         let host = cull_samples(
             &SampleRays {
@@ -404,6 +431,7 @@ fn culling_on_the_device_keeps_the_host_cullings_samples() {
             &s.frame.global,
             &s.frame.volume,
             model.config().cull_distance,
+            warp.map(CorrectionWarp::to_host).as_ref(),
         );
         let index: Vec<i64> = on_device.index.into_data().iter::<i64>().collect();
         assert_eq!(index, host.index, "{name}");
@@ -433,6 +461,55 @@ fn culling_on_the_device_keeps_the_host_cullings_samples() {
             &to_host(s.frame.volume.weights_at(&host.points)),
         );
     }
+}
+
+/// A refinement that moves the whole body by `v` (every bone followed by the same translation): the warp
+/// carries every point back by `−v` whatever its weights, so culling keeps exactly the samples near the given
+/// body or near it moved by `v`, as the volume's distance at `p` and at `p − v` says; and a warp between
+/// equal bones is the identity.
+#[test]
+fn a_correction_warp_keeps_the_samples_near_the_moved_body() {
+    let device = cpu_device();
+    let s = scene(&device, FrameCode::Training(2));
+    let same = CorrectionWarp::new(&s.frame.bones, &s.frame.bones);
+    let identity: Vec<f32> = (0..s.bones.len())
+        .flat_map(|_| [1.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0])
+        .collect();
+    anerf_testing::assert_close(
+        "the warp between equal bones",
+        &to_host(same.rows()),
+        &identity,
+        anerf_testing::Tolerance::Absolute(1e-6),
+    );
+    let v = Vec3::new(0.0, 0.0, 0.15);
+    let moved = BoneMatrices::new(&shifted_bones(&s.bones, v), &device);
+    let warp = CorrectionWarp::new(&s.frame.bones, &moved).to_host();
+    let cull = 0.05;
+    let samples = 64;
+    let depths = stratified_depths(s.rays.near.clone(), s.rays.far.clone(), samples, None);
+    let rays = SampleRays {
+        origins: &to_host(s.rays.origins.clone()),
+        directions: &to_host(s.rays.directions.clone()),
+        depths: &to_host(depths.clone()),
+        samples,
+    };
+    let without = cull_samples(&rays, &s.frame.global, &s.frame.volume, cull, None);
+    let with = cull_samples(&rays, &s.frame.global, &s.frame.volume, cull, Some(&warp));
+    let pose = to_host(pose_samples(&s.rays, depths, &s.frame.global));
+    let expected: Vec<i64> = (0..pose.len() / 3)
+        .filter(|&i| {
+            let p = Vec3::from_slice(&pose[3 * i..3 * i + 3]);
+            s.host_volume.distance_at(p) < cull || s.host_volume.distance_at(p - v) < cull
+        })
+        .map(|i| i as i64)
+        .collect();
+    assert_eq!(with.index, expected);
+    assert!(
+        with.index.len() > without.index.len() + 10,
+        "the moved body keeps more samples: {} against {}",
+        with.index.len(),
+        without.index.len()
+    );
 }
 
 /// Adds `delta` to element `index` of the parameter `target`.
@@ -1100,7 +1177,7 @@ fn fitting_the_corrections_to_images_of_a_known_correction_recovers_it() {
         )
         .unwrap();
         let (host, _) = HostRays::from_rays(&camera.image_rays(Default::default()), &world_box);
-        RayBatch::new(&host, FrameId(1), ViewId(0), &device)
+        RayBatch::new(&host, FrameId(1), &device)
     })
     .collect();
     // The known correction of training frame 1 (parameters = correction / scale), and its images.

@@ -3,7 +3,7 @@
 use burn::prelude::*;
 
 use crate::geometry::{Aabb, Ray};
-use crate::ids::{FrameId, ViewId};
+use crate::ids::FrameId;
 use crate::tensor::from_rows;
 
 /// Rays of one image (one frame seen from one view) on the host, before upload.
@@ -53,6 +53,19 @@ impl HostRays {
         self.near.is_empty()
     }
 
+    /// Appends `other`'s rays after these (rays of several images in one batch). Both must know the same
+    /// per-ray fields (colours, pixels, labels), or the fields stop lining up with the rays.
+    pub fn append(&mut self, other: HostRays) {
+        self.origins.extend(other.origins);
+        self.directions.extend(other.directions);
+        self.near.extend(other.near);
+        self.far.extend(other.far);
+        self.colors.extend(other.colors);
+        self.pixels.extend(other.pixels);
+        self.foreground.extend(other.foreground);
+        self.edge.extend(other.edge);
+    }
+
     /// The rays `range` as a new batch (for rendering in chunks).
     pub fn slice(&self, range: std::ops::Range<usize>) -> Self {
         Self {
@@ -68,11 +81,11 @@ impl HostRays {
     }
 }
 
-/// Rays of one image on a device: the unit of work of [`crate`]'s renderer.
+/// Rays of one frame (from one or several of its images) on a device: the unit of work of [`crate`]'s
+/// renderer.
 #[derive(Debug, Clone)]
 pub struct RayBatch {
     pub frame: FrameId,
-    pub view: ViewId,
     /// `[R, 3]` world-space origins (metres).
     pub origins: Tensor<2>,
     /// `[R, 3]` world-space unit directions.
@@ -89,12 +102,11 @@ pub struct RayBatch {
 }
 
 impl RayBatch {
-    /// Uploads `rays` of `frame` seen from `view`.
-    pub fn new(rays: &HostRays, frame: FrameId, view: ViewId, device: &Device) -> Self {
+    /// Uploads `rays` of `frame`.
+    pub fn new(rays: &HostRays, frame: FrameId, device: &Device) -> Self {
         let n = rays.len();
         Self {
             frame,
-            view,
             origins: from_rows(rays.origins.as_flattened(), n, 3, device),
             directions: from_rows(rays.directions.as_flattened(), n, 3, device),
             near: Tensor::from_floats(rays.near.as_slice(), device),

@@ -126,6 +126,7 @@ impl StepWorkload {
                 code: FrameCode::Training(1),
                 appearance: 1,
                 basis: None,
+                warp: None,
             },
             canonical: CanonicalInputs {
                 volume,

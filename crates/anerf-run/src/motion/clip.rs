@@ -150,6 +150,7 @@ impl MotionClip {
                 code: FrameCode::Novel(i),
                 appearance: exp.novel_appearance(),
                 basis: None,
+                warp: None,
             },
             bounds: body.bounds,
         })

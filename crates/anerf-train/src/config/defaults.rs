@@ -50,6 +50,7 @@ impl StageConfig {
         let shared = StageConfig {
             iterations: schedule.train_iterations,
             batch: 1024,
+            views_per_step: 1,
             lr,
             lr_final,
             schedule: LrSchedule::Paper,

@@ -243,6 +243,11 @@ pub struct StageConfig {
     pub iterations: usize,
     /// Rays per batch (stage 1) or points per set (stage 2).
     pub batch: usize,
+    /// Stage 1: the training views of the step's frame its rays are drawn from, split evenly (1: one image
+    /// a step, as the reference). Several views give a pose refinement's corrections a multi-view
+    /// gradient every time their frame is drawn.
+    #[serde(default = "one")]
+    pub views_per_step: usize,
     pub lr: f64,
     pub lr_final: f64,
     pub schedule: LrSchedule,

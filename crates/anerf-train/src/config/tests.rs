@@ -111,9 +111,10 @@ fn a_minimal_config_gets_the_documented_defaults() {
         (
             c.train.edge_scale,
             c.train.plateau_tolerance,
-            c.train.residual_weight
+            c.train.residual_weight,
+            c.train.views_per_step
         ),
-        (0.1, 0.01, 0.0)
+        (0.1, 0.01, 0.0, 1)
     );
     assert_eq!(
         (c.eval.frame_interval, c.eval.chunk, c.eval.termination),
@@ -176,6 +177,19 @@ fn errors_name_the_key_and_the_allowed_values() {
             .to_string();
         assert!(
             err.contains("train.edge_scale") && err.contains("positive, finite"),
+            "{err}"
+        );
+    }
+    let views = load(&p, &[]).unwrap().dataset.train_views.len();
+    for (count, expected) in [
+        (0, "1 up to the batch".to_string()),
+        (views + 1, format!("at most the {views} training views")),
+    ] {
+        let err = load(&p, &[format!("train.views_per_step={count}")])
+            .unwrap_err()
+            .to_string();
+        assert!(
+            err.contains("train.views_per_step") && err.contains(&expected),
             "{err}"
         );
     }

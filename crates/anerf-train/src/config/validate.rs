@@ -15,6 +15,17 @@ pub fn validate(c: &ExperimentConfig) -> Result<(), ConfigError> {
     c.train.validate("train")?;
     c.animate.validate("animate")?;
     c.eval.validate()?;
+    if c.train.views_per_step > c.dataset.train_views.len() {
+        return Err(InvalidValue::new(
+            "train.views_per_step",
+            c.train.views_per_step,
+            format!(
+                "at most the {} training views of dataset.train_views",
+                c.dataset.train_views.len()
+            ),
+        )
+        .into());
+    }
     if let Err(why) = anerf_data::paths::check_component(&c.name) {
         return Err(InvalidValue::new(
             "name",
@@ -117,6 +128,13 @@ impl StageConfig {
         }
         if self.batch == 0 {
             return bad("batch", &0, "a positive integer");
+        }
+        if self.views_per_step == 0 || self.views_per_step > self.batch {
+            return bad(
+                "views_per_step",
+                &self.views_per_step,
+                "1 up to the batch (each view gets a ray at least)",
+            );
         }
         for (key, rate) in [("lr", self.lr), ("lr_final", self.lr_final)] {
             if !(rate.is_finite() && rate > 0.0) {

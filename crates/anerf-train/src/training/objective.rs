@@ -267,7 +267,7 @@ mod tests {
     use crate::config::{self, Settings};
     use anerf_core::render::HostRays;
     use anerf_core::tensor::from_rows;
-    use anerf_core::{FrameId, ViewId};
+    use anerf_core::FrameId;
     use anerf_device::cpu_device;
     use anerf_testing::{assert_close, Tolerance};
 
@@ -312,7 +312,7 @@ mod tests {
             let cfg = config::assemble(config::demo_table(), &Settings::default(), &set)
                 .unwrap()
                 .train;
-            let rays = RayBatch::new(&host, FrameId(0), ViewId(0), &device);
+            let rays = RayBatch::new(&host, FrameId(0), &device);
             let opacity = Tensor::<1>::from_floats(acc, &device).require_grad();
             let errors = RayErrors::new(
                 from_rows(rgb.as_flattened(), 4, 3, &device),

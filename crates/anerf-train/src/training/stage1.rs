@@ -6,7 +6,7 @@ use std::sync::atomic::AtomicBool;
 use anerf_core::model::{AnimatableNerf, FrameCode, FrameInputs};
 use anerf_core::render::{psnr_from_mse, HostRays, RayBatch};
 use anerf_core::tensor::{from_rows, to_host};
-use anerf_core::{FrameId, ViewId};
+use anerf_core::FrameId;
 use anerf_data::{RaySampler, SamplerOptions};
 use anerf_eval::images::{write_png, PngDepth};
 use anerf_eval::ImageMetrics;
@@ -147,18 +147,18 @@ fn fresh_start(exp: &Experiment, cfg: &StageConfig) -> (AnimatableNerf, TrainerS
     (model, state)
 }
 
-/// One stage-1 step's rays on the host: a random training frame and view, the sampled rays, their depth
-/// jitter, and the frame's inputs on each replica's device.
+/// One stage-1 step's rays on the host: a random training frame, the rays sampled from
+/// `train.views_per_step` of its training views, their depth jitter, and the frame's inputs on each
+/// replica's device.
 struct RayStep {
     frame: FrameId,
-    view: ViewId,
     rays: HostRays,
     /// `[R·S]` uniform numbers in `[0, 1)`, `S` per ray.
     jitter: Vec<f32>,
     inputs: Vec<FrameInputs>,
 }
 
-/// A stage-1 step: one ray batch of a random training frame and view, rendered and compared.
+/// A stage-1 step: one ray batch of a random training frame and some of its views, rendered and compared.
 struct Stage1<'a> {
     exp: &'a mut Experiment,
     cfg: &'a StageConfig,
@@ -268,12 +268,12 @@ impl ShardedStep for Stage1<'_> {
             .sampler
             .as_mut()
             .expect("stage 1 keeps a sampler");
-        let (frame, view) = sampler
-            .pick(&exp.train_frames, &exp.train_views)
-            .expect("frames and views exist");
+        let (frame, views) = sampler
+            .pick(&exp.train_frames, &exp.train_views, self.cfg.views_per_step)
+            .expect("frames exist and views_per_step was checked against the training views");
         let rays = sampler
-            .sample_prepared(&exp.prepared, frame, view)
-            .with_context(|| format!("sampling rays of {frame}, {view}"))?;
+            .sample_prepared(&exp.prepared, frame, &views)
+            .with_context(|| format!("sampling rays of {frame}, views {views:?}"))?;
         let samples = exp.config.model.samples_per_ray;
         let rng = &mut self.state.rng;
         let jitter = (0..rays.len() * samples)
@@ -299,7 +299,6 @@ impl ShardedStep for Stage1<'_> {
             .collect::<Result<_>>()?;
         Ok(RayStep {
             frame,
-            view,
             rays,
             jitter,
             inputs,
@@ -320,12 +319,7 @@ impl ShardedStep for Stage1<'_> {
         let device = self.exp.replica_device(shard.index);
         let part = shard.part(batch.rays.len());
         let samples = model_cfg.samples_per_ray;
-        let rays = RayBatch::new(
-            &batch.rays.slice(part.clone()),
-            batch.frame,
-            batch.view,
-            device,
-        );
+        let rays = RayBatch::new(&batch.rays.slice(part.clone()), batch.frame, device);
         let jitter = from_rows(
             &batch.jitter[part.start * samples..part.end * samples],
             part.len(),
