@@ -14,7 +14,8 @@ source "$(dirname "${BASH_SOURCE[0]}")/synthetic_pair.sh"
 NOISY="$OUT/subject-noisy"
 degraded "$NOISY" --pose-noise "$NOISE"
 # The synthetic masks are exact: the band around their edges is trained.
-for spec in "exact $EXACT" "noisy $NOISY" "noisy-refined $NOISY --set model.pose_refinement.enabled=true"; do
+# A folder whose fits are not known exact (the noisy subject keeps true_params/) is refined by default.
+for spec in "exact $EXACT" "noisy $NOISY --set model.pose_refinement.enabled=false" "noisy-refined $NOISY"; do
     read -r label subject flags <<<"$spec"
     variant "$label" "$subject" --set train.mask_edges=train ${flags:+$flags}
     if [ -f "$OUT/$label/refined_poses.json" ]; then

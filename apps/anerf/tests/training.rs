@@ -94,7 +94,7 @@ fn a_few_steps_lower_the_loss_and_improve_a_held_out_view() {
 }
 
 /// `train --data <capture> --body-model <file>` on the EasyMocap fixture (the folder read directly, the
-/// body posed from the fits): the loss falls.
+/// body posed from the fits, which are refined): the loss falls.
 #[test]
 fn a_short_run_on_an_easymocap_capture_lowers_the_loss() {
     let dir = tempfile::tempdir().unwrap();
@@ -114,6 +114,10 @@ fn a_short_run_on_an_easymocap_capture_lowers_the_loss() {
         .to_vec();
     let config = config::assemble(table, &settings, &set).unwrap();
     assert_eq!(config.dataset.format, config::DatasetFormat::Easymocap);
+    assert!(
+        config.model.pose_refinement.enabled,
+        "a capture's fitted poses are refined"
+    );
     let run = trained(&config, dir.path());
     assert_loss_falls(&losses(&run));
 }

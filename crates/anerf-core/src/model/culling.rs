@@ -12,20 +12,21 @@ use crate::geometry::{BoneMatrices, GlobalTransform, VolumeTensor};
 use crate::render::RayBatch;
 use crate::tensor::to_host;
 
-/// Where a pose refinement moved the body, for culling: per bone the rigid motion `D_k = A_k · Â_k⁻¹`
-/// (pose space of the given fit, `[K, 12]` top rows of 4×4, row-major) that carries a point of the body
-/// where the corrected bones `Â_k` put it back to where the given bones `A_k` have it. A frame's volume
-/// measures distance to the *given* body; a sample `x` is also kept when `Σ_k w_k(x) D_k x` (blended by the
-/// prior weights at `x`) lies near it, i.e. when it lies near the *corrected* body, which a refinement may
-/// have moved by more than `cull_distance` (under fits 4 cm off, a quarter of the body's vertices lie farther
-/// than 5 cm from where the fit has them, a hand up to 20 cm). No gradient flows through culling.
+/// Where a pose refinement moved the body, for culling. Per bone, the rigid motion `D_k = A_k · Â_k⁻¹`
+/// (pose space of the given fit) carries a point of the body where the corrected bones `Â_k` put it back to
+/// where the given bones `A_k` have it; culling measures a sample's distance to the body at
+/// `x + Σ_k w_k(x) (D_k − I) x` (the prior weights `w` at `x` blend the displacements), i.e. its distance to
+/// the *corrected* body, which a refinement may have moved by more than `cull_distance` (under fits 4 cm off,
+/// a quarter of the vertices lie farther than 5 cm from where the fit has them, a hand up to 20 cm). The rows
+/// hold `D_k − I = (A_k − Â_k) Â_k⁻¹` (`[K, 12]`, top rows of 4×4, row-major), exactly zero where the bones
+/// agree, so zero corrections cull exactly as the given fit does. No gradient flows through culling.
 #[derive(Debug, Clone)]
 pub struct CorrectionWarp {
     rows: Tensor<2>,
 }
 
 impl CorrectionWarp {
-    /// The motions from `corrected` bones back to `given` ones (both rigid, canonical → pose space).
+    /// The displacements from `corrected` bones back to `given` ones (both rigid, canonical → pose space).
     pub fn new(given: &BoneMatrices, corrected: &BoneMatrices) -> Self {
         let k = given.num_joints();
         let split = |b: &BoneMatrices| {
@@ -33,20 +34,20 @@ impl CorrectionWarp {
             (m.clone().narrow(2, 0, 3), m.narrow(2, 3, 1))
         };
         let ((r, t), (r_hat, t_hat)) = (split(given), split(corrected));
-        // A Â⁻¹ = [R R̂ᵀ | t − R R̂ᵀ t̂] for rigid bones.
-        let rotation = r.matmul(r_hat.swap_dims(1, 2));
-        let translation = t - rotation.clone().matmul(t_hat);
+        // A Â⁻¹ − I = [(R − R̂) R̂ᵀ | (t − t̂) − (R − R̂) R̂ᵀ t̂] for rigid bones.
+        let rotation = (r - r_hat.clone()).matmul(r_hat.swap_dims(1, 2));
+        let translation = (t - t_hat.clone()) - rotation.clone().matmul(t_hat);
         Self {
             rows: Tensor::cat(vec![rotation, translation], 2).reshape([k, 12]),
         }
     }
 
-    /// The `[K, 12]` motions.
+    /// The `[K, 12]` displacements `D_k − I`.
     pub fn rows(&self) -> Tensor<2> {
         self.rows.clone()
     }
 
-    /// The motions on the host, for [`cull_samples`].
+    /// The displacements on the host, for [`cull_samples`].
     pub fn to_host(&self) -> HostWarp {
         HostWarp {
             rows: to_host(self.rows.clone())
@@ -56,9 +57,9 @@ impl CorrectionWarp {
         }
     }
 
-    /// Points `[N, 3]` carried back by the motions blended with `weights` (`[N, K]`).
+    /// Points `[N, 3]` carried back by the displacements blended with `weights` (`[N, K]`).
     fn apply(&self, points: Tensor<2>, weights: Tensor<2>) -> Tensor<2> {
-        BoneMatrices::from_rows(self.rows()).forward(points, weights)
+        points.clone() + BoneMatrices::from_rows(self.rows()).forward(points, weights)
     }
 }
 
@@ -69,7 +70,7 @@ pub struct HostWarp {
 }
 
 impl HostWarp {
-    /// `Σ_k w_k D_k p` with the prior weights `w` at `p` (`scratch` holds them, `K` long).
+    /// `p + Σ_k w_k (D_k − I) p` with the prior weights `w` at `p` (`scratch` holds them, `K` long).
     fn apply(&self, volume: &VolumeTensor, p: Vec3, scratch: &mut [f32]) -> Vec3 {
         scratch.fill(0.0);
         volume.weights_into(p, scratch);
@@ -79,7 +80,7 @@ impl HostWarp {
                 *a += w * b;
             }
         }
-        Vec3::new(
+        p + Vec3::new(
             m[0] * p.x + m[1] * p.y + m[2] * p.z + m[3],
             m[4] * p.x + m[5] * p.y + m[6] * p.z + m[7],
             m[8] * p.x + m[9] * p.y + m[10] * p.z + m[11],
@@ -152,8 +153,8 @@ pub struct Survivors {
 
 /// Places the samples of `rays` in pose space (`x_pose = R_hᵀ (o + z·d − T_h)`) and keeps those closer than
 /// `threshold` to the body by the host copy of the frame volume's distance channel
-/// ([`VolumeTensor::is_near`]), or, with a `warp`, closer to the body where the refinement moved it
-/// ([`CorrectionWarp`]); when none is, the closest sample to the given body (as [`surviving_indices`]).
+/// ([`VolumeTensor::is_near`]), measured with a `warp` where a refinement moved the body
+/// ([`CorrectionWarp`]); when none is, the closest sample (as [`surviving_indices`]).
 pub fn cull_samples(
     rays: &SampleRays,
     global: &GlobalTransform,
@@ -169,17 +170,22 @@ pub fn cull_samples(
         rotation_t
             * (ray_vec(rays.origins, r) + ray_vec(rays.directions, r) * rays.depths[i] - global.th)
     };
-    let n = rays.depths.len();
     let k = volume.num_joints();
+    // Where the sample's distance is measured: where the given body has its point.
+    let measured = |p: Vec3, scratch: &mut Vec<f32>| match warp {
+        Some(w) => w.apply(volume, p, scratch),
+        None => p,
+    };
+    let n = rays.depths.len();
     let mut near: Vec<(i64, Vec3)> = (0..n)
         .into_par_iter()
         .map_init(
             || vec![0.0f32; k],
             |scratch, i| {
                 let p = pose(i);
-                let kept = volume.is_near(p, threshold)
-                    || warp.is_some_and(|w| volume.is_near(w.apply(volume, p, scratch), threshold));
-                kept.then_some((i as i64, p))
+                volume
+                    .is_near(measured(p, scratch), threshold)
+                    .then_some((i as i64, p))
             },
         )
         .flatten()
@@ -187,7 +193,10 @@ pub fn cull_samples(
     if near.is_empty() && n > 0 {
         let distance: Vec<f32> = (0..n)
             .into_par_iter()
-            .map(|i| volume.distance_at(pose(i)))
+            .map_init(
+                || vec![0.0f32; k],
+                |scratch, i| volume.distance_at(measured(pose(i), scratch)),
+            )
             .collect();
         near = surviving_indices(&distance, threshold)
             .into_iter()
@@ -226,9 +235,8 @@ pub fn surviving_indices(distance: &[f32], threshold: f32) -> Vec<i64> {
 
 /// [`cull_samples`] on the device, for the GPU backends: the samples along `rays` at `depths` (`[R, S]`,
 /// metres) placed in pose space by `global`, their distance to the body looked up in the frame's `volume`
-/// (with a `warp`, the lesser of it and the distance to the corrected body), and those closer than
-/// `cull_distance` (metres; or else the closest to the given body) selected with their view directions and
-/// prior weights. Only the survivors' indices cross to the host and back (their count fixes the batch's
+/// (with a `warp`, to the body where the refinement moved it), and those closer than `cull_distance`
+/// (metres; or else the closest) selected with their view directions and prior weights. Only the survivors' indices cross to the host and back (their count fixes the batch's
 /// shape); the rays, depths and survivors stay on the device.
 pub(super) fn cull_on_device(
     rays: &RayBatch,
@@ -240,19 +248,12 @@ pub(super) fn cull_on_device(
 ) -> DeviceSurvivors {
     let [r, s] = depths.dims();
     let pose = pose_samples(rays, depths, global);
-    let distance = volume.sample_distance(pose.clone()).reshape([r * s]);
-    let near = match warp {
-        None => distance.clone().lower_elem(cull_distance),
-        Some(warp) => {
-            let carried = warp.apply(pose.clone(), volume.sample(pose.clone()).weights);
-            let moved = volume.sample_distance(carried).reshape([r * s]);
-            distance
-                .clone()
-                .lower_elem(cull_distance)
-                .bool_or(moved.lower_elem(cull_distance))
-        }
-    }
-    .argwhere();
+    let measured = match warp {
+        Some(warp) => warp.apply(pose.clone(), volume.sample(pose.clone()).weights),
+        None => pose.clone(),
+    };
+    let distance = volume.sample_distance(measured).reshape([r * s]);
+    let near = distance.clone().lower_elem(cull_distance).argwhere();
     let index = match near.dims() {
         [0, _] => distance.argmin(0),
         [m, _] => near.reshape([m]),

@@ -50,7 +50,7 @@ impl StageConfig {
         let shared = StageConfig {
             iterations: schedule.train_iterations,
             batch: 1024,
-            views_per_step: 1,
+            views_per_step: schedule.train_views_per_step,
             lr,
             lr_final,
             schedule: LrSchedule::Paper,

@@ -11,7 +11,8 @@ use toml::Table;
 use super::{DatasetFormat, FrameRange, FrameSplit};
 
 /// What a folder gives a config: its name, layout and the split (from `splits.json`, written by
-/// `anerf synth`, or four evenly spaced cameras and the first two thirds of the frames).
+/// `anerf synth`, or four evenly spaced cameras and the first two thirds of the frames), and pose
+/// refinement unless the fits are known to be exact.
 #[derive(Serialize)]
 struct FolderConfig {
     name: String,
@@ -37,6 +38,21 @@ struct FolderDataset {
 #[derive(Serialize)]
 struct FolderModel {
     preset: &'static str,
+    pose_refinement: FolderRefinement,
+}
+
+/// `[model.pose_refinement]` of a folder: on unless its body fits are known to be exact.
+#[derive(Serialize)]
+struct FolderRefinement {
+    enabled: bool,
+}
+
+/// Whether a folder's body fits are known to be exact: a subject `anerf synth` wrote (it leaves
+/// `splits.json`) without fit errors (`--pose-noise` stores the true poses in `true_params/`). Every other
+/// folder's fits come from a fitter and are off by centimetres, which pose refinement learns away
+/// (docs/POSE-REFINEMENT.md).
+fn fits_are_exact(data: &Path) -> bool {
+    data.join("splits.json").is_file() && !data.join("true_params").exists()
 }
 
 /// The folder's values as a config table, for [`super::assemble`] with the command's flags;
@@ -105,7 +121,12 @@ pub fn folder_table(data: &Path, load: &LoadOptions) -> Result<Table> {
             person: load.person,
             masks: load.masks.clone(),
         },
-        model: FolderModel { preset: "cpu" },
+        model: FolderModel {
+            preset: "cpu",
+            pose_refinement: FolderRefinement {
+                enabled: !fits_are_exact(data),
+            },
+        },
     };
     Ok(Table::try_from(folder).expect("a folder config serialises to TOML"))
 }
@@ -120,5 +141,25 @@ fn span(frames: &[usize]) -> FrameRange {
         start,
         end,
         step: 1,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Only a folder `anerf synth` wrote without fit errors counts as exact.
+    #[test]
+    fn only_a_synthetic_subject_without_fit_errors_has_exact_fits() {
+        let dir = tempfile::tempdir().unwrap();
+        let folder = dir.path();
+        assert!(!fits_are_exact(folder), "a capture");
+        std::fs::write(folder.join("splits.json"), "{}").unwrap();
+        assert!(fits_are_exact(folder), "a synthetic subject");
+        std::fs::create_dir(folder.join("true_params")).unwrap();
+        assert!(
+            !fits_are_exact(folder),
+            "a synthetic subject with noisy fits"
+        );
     }
 }

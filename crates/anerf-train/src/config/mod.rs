@@ -243,9 +243,10 @@ pub struct StageConfig {
     pub iterations: usize,
     /// Rays per batch (stage 1) or points per set (stage 2).
     pub batch: usize,
-    /// Stage 1: the training views of the step's frame its rays are drawn from, split evenly (1: one image
-    /// a step, as the reference). Several views give a pose refinement's corrections a multi-view
-    /// gradient every time their frame is drawn.
+    /// Stage 1: how many training views of the step's frame its rays are drawn from, split evenly (all of
+    /// them where there are fewer; 1: one image a step, as the reference). Several views give a pose
+    /// refinement's corrections a multi-view gradient every time their frame is drawn, and every step's
+    /// rays more variety (the `fast` preset draws 4).
     #[serde(default = "one")]
     pub views_per_step: usize,
     pub lr: f64,

@@ -10,8 +10,8 @@ use super::defaults::DEFAULT_PRESET;
 use super::table::merge;
 use super::{ConfigError, RESOLVED};
 
-/// The step counts, stage-2 batch and silhouette weight a model preset trains with where no file, flag or
-/// override gives them.
+/// The step counts, stage-2 batch, silhouette weight and views a step a model preset trains with where no
+/// file, flag or override gives them.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct PresetSchedule {
     /// `train.iterations`.
@@ -24,6 +24,8 @@ pub struct PresetSchedule {
     pub animate_plateau_steps: usize,
     /// `train.mask_weight` (0: colours alone, as the paper).
     pub train_mask_weight: f32,
+    /// `train.views_per_step` (1: one image a step, as the reference).
+    pub train_views_per_step: usize,
 }
 
 /// The schedule of each model preset.
@@ -38,18 +40,21 @@ pub fn preset_schedule(preset: ModelPreset) -> PresetSchedule {
             animate_batch: 65_536,
             animate_plateau_steps: 0,
             train_mask_weight: 0.0,
+            train_views_per_step: 1,
         },
         // Hash grids: 5,000 steps train the realistic subject in under eight minutes on 2 cores; stage 2
         // starts at the body model's weights and its novel-pose PSNR moves by less than 0.1 dB after that
         // (docs/QUALITY.md), so a few hundred steps of 16,384 points, stopped once the consistency loss
         // stops falling. The silhouette loss clears the hash grid's floaters and edge haze: held-out views
-        // and novel poses gain on the realistic and demo subjects (docs/QUALITY.md).
+        // and novel poses gain on the realistic and demo subjects (docs/QUALITY.md). Four views a step: held-out
+        // views gain with exact fits and more with refined ones (docs/POSE-REFINEMENT.md).
         ModelPreset::Fast => PresetSchedule {
             train_iterations: 5_000,
             animate_iterations: 300,
             animate_batch: 16_384,
             animate_plateau_steps: 100,
             train_mask_weight: 0.1,
+            train_views_per_step: 4,
         },
         ModelPreset::Tiny => PresetSchedule {
             train_iterations: 200,
@@ -57,6 +62,7 @@ pub fn preset_schedule(preset: ModelPreset) -> PresetSchedule {
             animate_batch: 4_096,
             animate_plateau_steps: 0,
             train_mask_weight: 0.0,
+            train_views_per_step: 1,
         },
     }
 }

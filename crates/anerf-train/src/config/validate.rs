@@ -15,17 +15,6 @@ pub fn validate(c: &ExperimentConfig) -> Result<(), ConfigError> {
     c.train.validate("train")?;
     c.animate.validate("animate")?;
     c.eval.validate()?;
-    if c.train.views_per_step > c.dataset.train_views.len() {
-        return Err(InvalidValue::new(
-            "train.views_per_step",
-            c.train.views_per_step,
-            format!(
-                "at most the {} training views of dataset.train_views",
-                c.dataset.train_views.len()
-            ),
-        )
-        .into());
-    }
     if let Err(why) = anerf_data::paths::check_component(&c.name) {
         return Err(InvalidValue::new(
             "name",

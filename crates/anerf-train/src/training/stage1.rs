@@ -268,9 +268,10 @@ impl ShardedStep for Stage1<'_> {
             .sampler
             .as_mut()
             .expect("stage 1 keeps a sampler");
+        let count = self.cfg.views_per_step.min(exp.train_views.len());
         let (frame, views) = sampler
-            .pick(&exp.train_frames, &exp.train_views, self.cfg.views_per_step)
-            .expect("frames exist and views_per_step was checked against the training views");
+            .pick(&exp.train_frames, &exp.train_views, count)
+            .expect("frames and views exist, and views_per_step is at least 1");
         let rays = sampler
             .sample_prepared(&exp.prepared, frame, &views)
             .with_context(|| format!("sampling rays of {frame}, views {views:?}"))?;
