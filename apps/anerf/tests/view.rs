@@ -8,6 +8,7 @@ use std::path::Path;
 use std::process::{Command, Stdio};
 use std::sync::atomic::{AtomicBool, Ordering};
 
+use anerf_eval::splat_ply::{write_splat_ply, SplatCloud};
 use anerf_view::Viewer;
 
 /// Status, headers (lower-cased names) and body of `request_line` sent to `addr`.
@@ -175,9 +176,10 @@ fn the_server_answers_the_page_the_index_and_the_runs_files() {
         assert!(index["splats"].is_null(), "{index:#}");
         let splats = run.join("export/splats");
         std::fs::create_dir_all(&splats).unwrap();
-        for name in ["avatar.ply", "skin.json"] {
-            std::fs::write(splats.join(name), name).unwrap();
-        }
+        // The Gaussians must be a splat file the server can read (a corrupt one is refused, see
+        // a_corrupt_splat_file_is_refused_with_the_reason); the sidecars are served as they are.
+        write_splat_ply(&splats.join("avatar.ply"), &one_gaussian()).unwrap();
+        std::fs::write(splats.join("skin.json"), "skin.json").unwrap();
         let partial: serde_json::Value = serde_json::from_slice(&get(addr, "/api/run").1).unwrap();
         assert!(partial["splats"].is_null(), "motion.json is missing");
         std::fs::write(splats.join("motion.json"), "motion.json").unwrap();
@@ -193,7 +195,11 @@ fn the_server_answers_the_page_the_index_and_the_runs_files() {
                 url.starts_with(&format!("/run/export/splats/{name}?v=")),
                 "{url}"
             );
-            assert_eq!(send(addr, "GET", url).2, name.as_bytes());
+            let expected = match name {
+                "avatar.ply" => std::fs::read(splats.join(name)).unwrap(),
+                _ => name.as_bytes().to_vec(),
+            };
+            assert_eq!(send(addr, "GET", url).2, expected);
         }
         assert_eq!(index["videos"][0]["kind"], "gif");
         assert_eq!(
@@ -455,4 +461,47 @@ fn the_view_command_prints_its_address_and_serves_until_stopped() {
     assert!(!out.status.success());
     let stderr = String::from_utf8_lossy(&out.stderr);
     assert!(stderr.contains("is not a run folder"), "{stderr}");
+}
+
+/// One Gaussian, for a splat file the server accepts.
+fn one_gaussian() -> SplatCloud<'static> {
+    SplatCloud {
+        means: &[[0.0, 1.0, 0.0]],
+        log_scales: &[[-4.0; 3]],
+        rotations: &[[1.0, 0.0, 0.0, 0.0]],
+        opacity_logits: &[1.0],
+        colours: &[0.5; 3],
+        sh_degree: 0,
+    }
+}
+
+/// A splat file is checked before it is served: the exported layout is served as is, a truncated copy is
+/// refused (422) with the file and the reason named.
+#[test]
+fn a_corrupt_splat_file_is_refused_with_the_reason() {
+    use anerf_train::run_dir::RunDir;
+    use anerf_view::routes::route;
+
+    let dir = tempfile::tempdir().unwrap();
+    let run = RunDir::open(&fake_run(dir.path())).unwrap();
+    let splats = run.exports().join("splats");
+    std::fs::create_dir_all(&splats).unwrap();
+    let good = splats.join("avatar.ply");
+    write_splat_ply(&good, &one_gaussian()).unwrap();
+    let bytes = std::fs::read(&good).unwrap();
+    std::fs::write(splats.join("short.ply"), &bytes[..bytes.len() - 5]).unwrap();
+    assert_eq!(
+        route(&run, "GET", "/run/export/splats/avatar.ply").status,
+        200
+    );
+    let reply = route(&run, "GET", "/run/export/splats/short.ply");
+    assert_eq!(reply.status, 422);
+    let text = match reply.body {
+        anerf_view::routes::Body::Owned(b) => String::from_utf8(b).unwrap(),
+        _ => panic!("a refusal is text"),
+    };
+    assert!(
+        text.contains("/run/export/splats/short.ply") && text.contains("truncated"),
+        "{text}"
+    );
 }

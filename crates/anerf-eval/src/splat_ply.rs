@@ -5,6 +5,7 @@
 //! channel by channel (every red coefficient, then green, then blue: 3DGS's order); `opacity` a logit;
 //! `scale` natural logarithms of the standard deviations; `rot` a quaternion `w x y z`; normals 0.
 
+use std::io::Read;
 use std::path::Path;
 
 use anerf_data::atomic::write_with;
@@ -121,6 +122,143 @@ pub fn write_splat_ply(path: &Path, cloud: &SplatCloud) -> Result<(), EvalError>
     })
 }
 
+/// Gaussians read from a splat PLY ([`read_splat_ply`]), in [`SplatCloud`]'s layout.
+#[derive(Debug, Clone, PartialEq)]
+pub struct SplatData {
+    pub means: Vec<[f32; 3]>,
+    pub log_scales: Vec<[f32; 3]>,
+    pub rotations: Vec<[f32; 4]>,
+    pub opacity_logits: Vec<f32>,
+    /// `3·(d+1)²` coefficients per Gaussian, coefficient-major.
+    pub colours: Vec<f32>,
+    pub sh_degree: usize,
+}
+
+/// Longest header accepted: the layout's is a few hundred bytes for any degree anerf writes.
+const MAX_HEADER_BYTES: usize = 64 * 1024;
+
+/// Reads a PLY in the layout [`write_splat_ply`] writes (degree 0 to 3), refusing with the file named:
+/// another format or property list, a header claiming more than `max_gaussians` Gaussians (checked before
+/// anything is allocated for them), a file shorter or longer than its header says (truncated), a value
+/// that is not finite, or a rotation of zero length. Scales are logarithms, so any finite value is a
+/// positive scale.
+pub fn read_splat_ply(path: &Path, max_gaussians: usize) -> Result<SplatData, EvalError> {
+    let bad = |detail: String| EvalError::Format {
+        path: path.to_path_buf(),
+        detail,
+    };
+    let io = |source| EvalError::Io {
+        path: path.to_path_buf(),
+        source,
+    };
+    let mut file = std::fs::File::open(path).map_err(io)?;
+    let length = file.metadata().map_err(io)?.len();
+    let mut head = Vec::new();
+    (&mut file)
+        .take(MAX_HEADER_BYTES as u64)
+        .read_to_end(&mut head)
+        .map_err(io)?;
+    let end = b"end_header\n";
+    let at = head
+        .windows(end.len())
+        .position(|w| w == end)
+        .ok_or_else(|| {
+            bad(format!(
+                "no end_header line in its first {MAX_HEADER_BYTES} bytes"
+            ))
+        })?
+        + end.len();
+    let header =
+        std::str::from_utf8(&head[..at]).map_err(|_| bad("the header is not text".into()))?;
+    let mut lines = header.lines();
+    if lines.next() != Some("ply") {
+        return Err(bad("not a PLY file (no 'ply' line first)".into()));
+    }
+    let (mut count, mut names) = (None, Vec::new());
+    for line in lines {
+        match line.split_whitespace().collect::<Vec<_>>().as_slice() {
+            ["format", "binary_little_endian", "1.0"] | ["comment", ..] | ["end_header"] => {}
+            ["format", other, ..] => {
+                return Err(bad(format!(
+                    "format {other}; expected binary_little_endian 1.0"
+                )))
+            }
+            ["element", "vertex", n] if count.is_none() => {
+                count = Some(
+                    n.parse::<usize>()
+                        .map_err(|_| bad(format!("vertex count '{n}'")))?,
+                )
+            }
+            ["property", "float", name] if count.is_some() => names.push(name.to_string()),
+            _ => return Err(bad(format!("unexpected header line '{line}'"))),
+        }
+    }
+    let n = count.ok_or_else(|| bad("no 'element vertex' line".into()))?;
+    if n > max_gaussians {
+        return Err(bad(format!(
+            "{n} Gaussians; at most {max_gaussians} are read"
+        )));
+    }
+    let sh_degree = (0..=3)
+        .find(|&d| property_names(d) == names)
+        .ok_or_else(|| {
+            bad(format!(
+                "properties {}; expected 3D Gaussian Splatting's (x y z nx ny nz f_dc_0..2 f_rest_* opacity \
+                 scale_0..2 rot_0..3) of degree 0 to 3",
+                names.join(" ")
+            ))
+        })?;
+    let width = names.len();
+    let expected = at as u64 + (n * width * 4) as u64;
+    if length != expected {
+        return Err(bad(format!(
+            "{length} bytes; {n} Gaussians of {width} floats after the header make {expected} (truncated \
+             or trailing data)"
+        )));
+    }
+    let mut body = head[at..].to_vec();
+    file.read_to_end(&mut body).map_err(io)?;
+    let values: Vec<f32> = body
+        .chunks_exact(4)
+        .map(|c| f32::from_le_bytes(c.try_into().expect("4 bytes")))
+        .collect();
+    if let Some(i) = values.iter().position(|v| !v.is_finite()) {
+        return Err(bad(format!(
+            "Gaussian {}'s {} is {}",
+            i / width,
+            names[i % width],
+            values[i]
+        )));
+    }
+    let k = (sh_degree + 1).pow(2);
+    let mut data = SplatData {
+        means: Vec::with_capacity(n),
+        log_scales: Vec::with_capacity(n),
+        rotations: Vec::with_capacity(n),
+        opacity_logits: Vec::with_capacity(n),
+        colours: Vec::with_capacity(n * 3 * k),
+        sh_degree,
+    };
+    for (i, row) in values.chunks_exact(width).enumerate() {
+        let rest = &row[9..9 + 3 * (k - 1)];
+        let tail = &row[9 + 3 * (k - 1)..];
+        let rotation = [tail[4], tail[5], tail[6], tail[7]];
+        if rotation.iter().all(|&q| q == 0.0) {
+            return Err(bad(format!("Gaussian {i}'s rotation is zero")));
+        }
+        data.means.push([row[0], row[1], row[2]]);
+        data.colours.extend(&row[6..9]);
+        for c in 1..k {
+            data.colours
+                .extend((0..3).map(|channel| rest[channel * (k - 1) + c - 1]));
+        }
+        data.opacity_logits.push(tail[0]);
+        data.log_scales.push([tail[1], tail[2], tail[3]]);
+        data.rotations.push(rotation);
+    }
+    Ok(data)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -215,5 +353,109 @@ mod tests {
         };
         assert!(write_splat_ply(&dir.path().join("b.ply"), &short).is_err());
         assert!(!dir.path().join("b.ply").exists());
+    }
+
+    fn two_gaussians(dir: &Path) -> (std::path::PathBuf, SplatData) {
+        let data = SplatData {
+            means: vec![[0.1, 0.2, 0.3], [-1.0, 2.0, 0.5]],
+            log_scales: vec![[-4.0, -4.5, -6.0], [-3.0, -3.5, -5.0]],
+            rotations: vec![[1.0, 0.0, 0.0, 0.0], [0.5, 0.5, 0.5, 0.5]],
+            opacity_logits: vec![2.0, -1.0],
+            colours: (0..24).map(|v| v as f32 * 0.1).collect(),
+            sh_degree: 1,
+        };
+        let path = dir.join("a.ply");
+        write_splat_ply(
+            &path,
+            &SplatCloud {
+                means: &data.means,
+                log_scales: &data.log_scales,
+                rotations: &data.rotations,
+                opacity_logits: &data.opacity_logits,
+                colours: &data.colours,
+                sh_degree: data.sh_degree,
+            },
+        )
+        .unwrap();
+        (path, data)
+    }
+
+    #[test]
+    fn a_written_cloud_reads_back_with_its_count_and_attributes() {
+        let dir = tempfile::tempdir().unwrap();
+        let (path, data) = two_gaussians(dir.path());
+        assert_eq!(read_splat_ply(&path, 2).unwrap(), data);
+    }
+
+    /// Truncated, over the limit, non-finite, a zero rotation, another format: refused naming the file.
+    #[test]
+    fn a_bad_splat_file_is_refused_naming_it() {
+        let dir = tempfile::tempdir().unwrap();
+        let (path, _) = two_gaussians(dir.path());
+        let bytes = std::fs::read(&path).unwrap();
+        let header = bytes
+            .windows(11)
+            .position(|w| w == b"end_header\n")
+            .unwrap()
+            + 11;
+        let width = 6 + 3 + 9 + 1 + 3 + 4;
+        let float_at =
+            |gaussian: usize, property: usize| header + 4 * (gaussian * width + property);
+        let with = |name: &str, edit: &dyn Fn(&mut Vec<u8>)| {
+            let mut b = bytes.clone();
+            edit(&mut b);
+            let p = dir.path().join(name);
+            std::fs::write(&p, b).unwrap();
+            p
+        };
+        let cases: Vec<(std::path::PathBuf, usize, &str)> = vec![
+            (
+                with("short.ply", &|b| b.truncate(b.len() - 3)),
+                2,
+                "truncated",
+            ),
+            (path.clone(), 1, "at most 1"),
+            (
+                with("nan.ply", &|b| {
+                    let at = float_at(1, 21);
+                    b[at..at + 4].copy_from_slice(&f32::NAN.to_le_bytes());
+                }),
+                2,
+                "scale_2 is NaN",
+            ),
+            (
+                with("zero.ply", &|b| {
+                    let at = float_at(0, 22);
+                    b[at..at + 16].fill(0);
+                }),
+                2,
+                "rotation is zero",
+            ),
+            (
+                with("ascii.ply", &|b| {
+                    let text = String::from_utf8_lossy(&b[..header])
+                        .replace("binary_little_endian", "ascii");
+                    b.splice(..header, text.into_bytes());
+                }),
+                2,
+                "expected binary_little_endian",
+            ),
+            (
+                with("huge.ply", &|b| {
+                    let text = String::from_utf8_lossy(&b[..header])
+                        .replace("vertex 2", "vertex 99999999999");
+                    b.splice(..header, text.into_bytes());
+                }),
+                1_000_000,
+                "at most 1000000",
+            ),
+        ];
+        for (file, max, why) in cases {
+            let err = read_splat_ply(&file, max).unwrap_err().to_string();
+            assert!(
+                err.contains(&file.display().to_string()) && err.contains(why),
+                "{why}: {err}"
+            );
+        }
     }
 }

@@ -140,11 +140,25 @@ fn run_file(run: &RunDir, rel: &str) -> Reply {
             )
         }
     };
+    // A splat file the page would parse is checked first, so that a truncated or corrupt one is refused
+    // with the reason instead of failing in the browser.
+    if file
+        .extension()
+        .is_some_and(|e| e.eq_ignore_ascii_case("ply"))
+    {
+        if let Err(e) = anerf_eval::splat_ply::read_splat_ply(&file, MAX_SERVED_SPLATS) {
+            return Reply::text(422, format!("{shown}: {e}"));
+        }
+    }
     match std::fs::File::open(&file) {
         Ok(f) => Reply::new(200, content_type(&file), Body::File(f)),
         Err(e) => Reply::text(404, format!("{shown}: {e}")),
     }
 }
+
+/// Most Gaussians a served splat file may hold (16.8 million, 300 times the bake's default budget; the page
+/// keeps every one in GPU memory): a header claiming more is refused before its rows are read.
+const MAX_SERVED_SPLATS: usize = 1 << 24;
 
 fn content_type(path: &Path) -> &'static str {
     let ext = path
