@@ -146,7 +146,9 @@ fn run_file(run: &RunDir, rel: &str) -> Reply {
         .extension()
         .is_some_and(|e| e.eq_ignore_ascii_case("ply"))
     {
-        if let Err(e) = anerf_eval::splat_ply::read_splat_ply(&file, MAX_SERVED_SPLATS) {
+        if let Err(e) =
+            anerf_eval::splat_ply::read_splat_ply(&file, anerf_core::gaussians::MAX_GAUSSIANS)
+        {
             return Reply::text(422, format!("{shown}: {e}"));
         }
     }
@@ -155,10 +157,6 @@ fn run_file(run: &RunDir, rel: &str) -> Reply {
         Err(e) => Reply::text(404, format!("{shown}: {e}")),
     }
 }
-
-/// Most Gaussians a served splat file may hold (16.8 million, 300 times the bake's default budget; the page
-/// keeps every one in GPU memory): a header claiming more is refused before its rows are read.
-const MAX_SERVED_SPLATS: usize = 1 << 24;
 
 fn content_type(path: &Path) -> &'static str {
     let ext = path

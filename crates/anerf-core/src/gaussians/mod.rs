@@ -10,6 +10,10 @@ pub mod host;
 pub mod project;
 pub mod sh;
 
+/// Most Gaussians anerf reads into one avatar (16.8 million, 300 times the bake's default budget): a baked
+/// folder or splat file claiming more is refused before anything is allocated for them.
+pub const MAX_GAUSSIANS: usize = 1 << 24;
+
 pub use cloud::GaussianCloud;
 pub use host::{project_host, HostCloud};
 pub use project::{project, render, SplatView};

@@ -8,7 +8,7 @@
 use std::path::Path;
 
 use anerf_core::gaussians::sh;
-use anerf_core::gaussians::{GaussianCloud, HostCloud};
+use anerf_core::gaussians::{GaussianCloud, HostCloud, MAX_GAUSSIANS};
 use anerf_core::tensor::{from_rows, to_host};
 use anerf_data::atomic::{replace_dir, temp_dir_beside, write_bytes};
 use anerf_data::formats::ndarray::{ArrayData, NdArray};
@@ -159,8 +159,8 @@ impl BakedAvatar {
         Ok(())
     }
 
-    /// Reads the avatar in `dir`, checking its manifest, shapes and values (finite, skin joints below
-    /// `info.joints`, weights non-negative).
+    /// Reads the avatar in `dir`, checking its manifest, its size (at most [`MAX_GAUSSIANS`], before any
+    /// array is read), shapes and values (finite, skin joints below `info.joints`, weights non-negative).
     pub fn load(dir: &Path) -> Result<Self> {
         let manifest = Manifest::read(dir)?.with_context(|| {
             format!(
@@ -183,6 +183,12 @@ impl BakedAvatar {
             );
         }
         let n = info.gaussians;
+        if n > MAX_GAUSSIANS {
+            bail!(
+                "{}: {n} Gaussians (at most {MAX_GAUSSIANS} are read)",
+                info_path.display()
+            );
+        }
         let read = |name: &str, width: usize| -> Result<NdArray> {
             let path = dir.join(name);
             let array = read_npy(&path)?;
@@ -327,6 +333,15 @@ mod tests {
         nan.save(&path).unwrap();
         let err = format!("{:#}", BakedAvatar::load(&path).unwrap_err());
         assert!(err.contains("opacity_logits.npy"), "{err}");
+
+        let mut huge = avatar(4, 1);
+        huge.info.gaussians = MAX_GAUSSIANS + 1;
+        huge.save(&path).unwrap();
+        let err = format!("{:#}", BakedAvatar::load(&path).unwrap_err());
+        assert!(
+            err.contains("avatar.json") && err.contains("at most"),
+            "{err}"
+        );
 
         std::fs::remove_file(path.join("manifest.json")).unwrap();
         let err = format!("{:#}", BakedAvatar::load(&path).unwrap_err());
