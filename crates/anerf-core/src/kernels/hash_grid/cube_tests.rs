@@ -11,7 +11,6 @@
 
 use burn::prelude::*;
 use burn_cubecl::ops::into_data_sync;
-use burn_cubecl::tensor::CubeTensor;
 
 use super::cube;
 use super::reference::encode as encode_reference;

@@ -210,7 +210,7 @@ fn backward_kernel<W: Numeric>(
 /// The splats on the host and their tile lists on the device: `(starts, order)` as `u32` tensors.
 fn bin_on_host(splats: &CubeTensor, spec: &RasterSpec) -> (Bins, CubeTensor, CubeTensor) {
     let rows = into_data_sync(splats.clone())
-        .into_vec::<f32>()
+        .try_into_vec::<f32>()
         .expect("f32 splat rows");
     let bins = cpu::bin(&rows, spec);
     let upload = |values: &[u32]| {

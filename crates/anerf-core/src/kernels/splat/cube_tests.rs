@@ -93,7 +93,7 @@ fn cube_gradient_matches_flex_and_the_reference() {
                 &SPEC,
                 scheme,
             );
-            let got = into_data_sync(got).into_vec::<f32>().unwrap();
+            let got = into_data_sync(got).try_into_vec::<f32>().unwrap();
             assert_near(&format!("gradient on {choice} vs flex"), &got, &flex, 1e-3);
             assert_near(
                 &format!("gradient on {choice} vs the reference there"),
