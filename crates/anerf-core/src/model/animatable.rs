@@ -569,7 +569,7 @@ impl AnimatableNerf {
                     &frame.global,
                     &frame.volume,
                     self.config.cull_distance,
-                    frame.warp.as_ref().map(CorrectionWarp::to_host).as_ref(),
+                    frame.warp.as_ref().map(CorrectionWarp::host),
                 );
                 let (rows, shaded) =
                     self.shade_survivors(&survivors.points, survivors.directions, frame, canonical);

@@ -3,6 +3,8 @@
 //! the CPU backends (only the survivors' positions and directions are uploaded), on the device for the GPU
 //! backends (reading the batch back and uploading the survivors would cost more than the lookups).
 
+use std::sync::{Arc, OnceLock};
+
 use burn::prelude::*;
 use glam::Vec3;
 use rayon::prelude::*;
@@ -23,6 +25,8 @@ use crate::tensor::to_host;
 #[derive(Debug, Clone)]
 pub struct CorrectionWarp {
     rows: Tensor<2>,
+    /// The rows on the host, read back once (shared by clones) for the host culling of every chunk of rays.
+    host: Arc<OnceLock<HostWarp>>,
 }
 
 impl CorrectionWarp {
@@ -39,6 +43,7 @@ impl CorrectionWarp {
         let translation = (t - t_hat.clone()) - rotation.clone().matmul(t_hat);
         Self {
             rows: Tensor::cat(vec![rotation, translation], 2).reshape([k, 12]),
+            host: Arc::default(),
         }
     }
 
@@ -47,14 +52,14 @@ impl CorrectionWarp {
         self.rows.clone()
     }
 
-    /// The displacements on the host, for [`cull_samples`].
-    pub fn to_host(&self) -> HostWarp {
-        HostWarp {
+    /// The displacements on the host, for [`cull_samples`] (read back on the first call).
+    pub fn host(&self) -> &HostWarp {
+        self.host.get_or_init(|| HostWarp {
             rows: to_host(self.rows.clone())
                 .chunks_exact(12)
                 .map(|r| r.try_into().expect("12 values a bone"))
                 .collect(),
-        }
+        })
     }
 
     /// Points `[N, 3]` carried back by the displacements blended with `weights` (`[N, K]`).
@@ -236,8 +241,9 @@ pub fn surviving_indices(distance: &[f32], threshold: f32) -> Vec<i64> {
 /// [`cull_samples`] on the device, for the GPU backends: the samples along `rays` at `depths` (`[R, S]`,
 /// metres) placed in pose space by `global`, their distance to the body looked up in the frame's `volume`
 /// (with a `warp`, to the body where the refinement moved it), and those closer than `cull_distance`
-/// (metres; or else the closest) selected with their view directions and prior weights. Only the survivors' indices cross to the host and back (their count fixes the batch's
-/// shape); the rays, depths and survivors stay on the device.
+/// (metres; or else the closest) selected with their view directions and prior weights. Only the survivors'
+/// indices cross to the host and back (their count fixes the batch's shape); the rays, depths and survivors
+/// stay on the device.
 pub(super) fn cull_on_device(
     rays: &RayBatch,
     depths: Tensor<2>,

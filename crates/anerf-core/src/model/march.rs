@@ -65,7 +65,7 @@ impl AnimatableNerf {
             &frame.global,
             &frame.volume,
             self.config().cull_distance,
-            frame.warp.as_ref().map(CorrectionWarp::to_host).as_ref(),
+            frame.warp.as_ref().map(CorrectionWarp::host),
         );
         // Survivors are ordered by ray, then depth: ray `q`'s are `starts[q]..starts[q + 1]`.
         let mut starts = vec![0usize; r + 1];

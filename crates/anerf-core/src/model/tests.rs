@@ -431,7 +431,7 @@ fn culling_on_the_device_keeps_the_host_cullings_samples() {
             &s.frame.global,
             &s.frame.volume,
             model.config().cull_distance,
-            warp.map(CorrectionWarp::to_host).as_ref(),
+            warp.map(CorrectionWarp::host),
         );
         let index: Vec<i64> = on_device.index.into_data().iter::<i64>().collect();
         assert_eq!(index, host.index, "{name}");
@@ -475,7 +475,7 @@ fn a_correction_warp_keeps_the_samples_near_the_moved_body() {
     assert!(to_host(same.rows()).iter().all(|&v| v == 0.0));
     let v = Vec3::new(0.0, 0.0, 0.15);
     let moved = BoneMatrices::new(&shifted_bones(&s.bones, v), &device);
-    let warp = CorrectionWarp::new(&s.frame.bones, &moved).to_host();
+    let warp = CorrectionWarp::new(&s.frame.bones, &moved);
     let cull = 0.05;
     let samples = 64;
     let depths = stratified_depths(s.rays.near.clone(), s.rays.far.clone(), samples, None);
@@ -491,10 +491,16 @@ fn a_correction_warp_keeps_the_samples_near_the_moved_body() {
         &s.frame.global,
         &s.frame.volume,
         cull,
-        Some(&same.to_host()),
+        Some(same.host()),
     );
     assert_eq!(zero, given, "zero corrections");
-    let with = cull_samples(&rays, &s.frame.global, &s.frame.volume, cull, Some(&warp));
+    let with = cull_samples(
+        &rays,
+        &s.frame.global,
+        &s.frame.volume,
+        cull,
+        Some(warp.host()),
+    );
     let pose = to_host(pose_samples(&s.rays, depths, &s.frame.global));
     let near = |shift: Vec3| -> Vec<i64> {
         (0..pose.len() / 3)
