@@ -8,7 +8,9 @@ Reads `<run>/refined_poses.json` (the training frames' given and refined fits, w
 refined fits, the mean geodesic angle between fitted and true joint rotations (degrees; every joint but the
 root, whose rotation the datasets keep in Rh, plus Rh itself), and the mean distance between the vertices the
 two poses place (centimetres; linear blend skinning of `lbs/tvertices.npy` with `lbs/weights.npy`, then
-x = R(Rh) x + Th, as the datasets do). numpy only.
+x = R(Rh) x + Th, as the datasets do), split into the part common to all frames (each vertex's mean
+displacement over the frames: a shift the canonical body takes on, which the training images cannot reveal)
+and the per-frame rest (what the images can correct). numpy only.
 """
 import json
 import os
@@ -65,11 +67,12 @@ def true_pose(subject, frame):
 
 
 def errors(lbs, fit, truth):
+    """Mean joint-angle error (degrees) and the vertices' displacements from the truth (metres, `[V, 3]`)."""
     (fj, frh, fth), (tj, trh, tth) = fit, truth
     angles = [angle_between(rodrigues(a), rodrigues(b)) for a, b in zip(fj[1:], tj[1:])]
     angles.append(angle_between(rodrigues(frh), rodrigues(trh)))
-    distance = np.linalg.norm(posed_vertices(lbs, fj, frh, fth) - posed_vertices(lbs, tj, trh, tth), axis=1)
-    return np.degrees(np.mean(angles)), 100 * float(np.mean(distance))
+    displacement = posed_vertices(lbs, fj, frh, fth) - posed_vertices(lbs, tj, trh, tth)
+    return np.degrees(np.mean(angles)), displacement
 
 
 def main():
@@ -90,9 +93,13 @@ def main():
         for kind in rows:
             rows[kind].append(errors(lbs, pose_of(entry[kind]), truth))
     for kind, values in rows.items():
-        a = np.array(values)
-        print(f"{kind}: mean joint angle error {a[:, 0].mean():.3f} deg, mean vertex error {a[:, 1].mean():.3f} cm"
-              f" over {len(values)} training frames")
+        angles = np.array([a for a, _ in values])
+        d = np.stack([d for _, d in values])  # [F, V, 3]
+        common = d.mean(axis=0)
+        cm = lambda x: 100 * float(np.mean(np.linalg.norm(x, axis=-1)))
+        print(f"{kind}: mean joint angle error {angles.mean():.3f} deg, mean vertex error {cm(d):.3f} cm"
+              f" over {len(values)} training frames (common to all frames {cm(common):.3f} cm,"
+              f" per frame {cm(d - common):.3f} cm)")
 
 
 if __name__ == "__main__":

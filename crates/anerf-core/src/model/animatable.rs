@@ -74,6 +74,8 @@ pub struct RenderOutput {
     pub acc: Tensor<1>,
     /// `[R]` expected depth, metres.
     pub depth: Tensor<1>,
+    /// `[R, S]` the samples' opacities `α` (culled samples 0), for the hard-surface prior.
+    pub alpha: Tensor<2>,
     /// Observation and canonical blend weights on the surviving samples (when asked for).
     pub consistency: Option<ConsistencyTerms>,
     /// Samples that survived culling (they reach the blend-weight field), samples among them in occupied
@@ -644,6 +646,7 @@ impl AnimatableNerf {
             rgb: out.rgb,
             acc: out.acc,
             depth: out.depth,
+            alpha: out.alpha,
             consistency,
             surviving_samples: surviving,
             occupied_samples: occupied,

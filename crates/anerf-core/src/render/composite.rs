@@ -14,6 +14,8 @@ pub struct Composited {
     pub depth: Tensor<1>,
     /// `[R, S]` compositing weights `w_k = α_k T_k`.
     pub weights: Tensor<2>,
+    /// `[R, S]` the samples' opacities `α_k`.
+    pub alpha: Tensor<2>,
 }
 
 /// Composites raw densities `[R, S]` (ReLU applied here), colours `[R, S, 3]` at depths `[R, S]`.
@@ -32,7 +34,7 @@ pub fn composite(density: Tensor<2>, rgb: Tensor<3>, depths: Tensor<2>) -> Compo
     let tau = relu(density) * deltas;
     let alpha = tau.clone().neg().exp().neg() + 1.0;
     let transmittance = (tau.clone().cumsum(1) - tau).neg().exp();
-    let weights = alpha * transmittance;
+    let weights = alpha.clone() * transmittance;
     let rgb = (rgb * weights.clone().unsqueeze_dim::<3>(2))
         .sum_dim(1)
         .reshape([r, 3]);
@@ -43,6 +45,7 @@ pub fn composite(density: Tensor<2>, rgb: Tensor<3>, depths: Tensor<2>) -> Compo
         acc,
         depth,
         weights,
+        alpha,
     }
 }
 

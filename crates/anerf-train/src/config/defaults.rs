@@ -61,6 +61,7 @@ impl StageConfig {
             mask_edges: MaskEdges::default(),
             edge_scale: 0.1,
             mask_weight: schedule.train_mask_weight,
+            hard_surface_weight: 0.0,
             residual_weight: 0.0,
             plateau_steps: 0,
             plateau_tolerance: 0.01,

@@ -272,6 +272,12 @@ pub struct StageConfig {
     /// Stage 1: weight of the silhouette loss `mean((acc − m)²)`, the rendered opacity against the mask
     /// (1 on body pixels, 0 elsewhere); 0 disables it (the paper fits colours alone).
     pub mask_weight: f32,
+    /// Stage 1: weight of the hard-surface prior, each ray's `Σ_k α_k (1 − α_k)` over its samples' opacities
+    /// (mean over rays): it pushes every sample to empty or opaque, so that a faint shell around the body,
+    /// which explains one view's dilated mask labels while the other views see through it, cannot form;
+    /// 0 disables it.
+    #[serde(default)]
+    pub hard_surface_weight: f32,
     /// Weight of `mean(F²)`, the penalty on the blend-weight residual that keeps the neural weights at the
     /// body model's where the data does not ask otherwise; 0 disables it.
     pub residual_weight: f32,

@@ -135,6 +135,7 @@ impl StageConfig {
         }
         for (key, weight) in [
             ("mask_weight", self.mask_weight),
+            ("hard_surface_weight", self.hard_surface_weight),
             ("residual_weight", self.residual_weight),
         ] {
             if !(weight.is_finite() && weight >= 0.0) {

@@ -45,7 +45,10 @@ impl TermSums {
     ) -> Self {
         let target = rays.colors.clone().expect("training rays carry colours");
         let silhouette = rays.foreground.as_ref().map(|m| (&out.acc, m));
-        let data = RayErrors::new(out.rgb.clone(), target, silhouette, rays.edge.as_ref(), cfg);
+        let mut data = RayErrors::new(out.rgb.clone(), target, silhouette, rays.edge.as_ref(), cfg);
+        if cfg.hard_surface_weight > 0.0 {
+            data.add_hard_surface(&out.alpha, cfg.hard_surface_weight);
+        }
         Self::from_parts(data, out.consistency.as_ref(), cfg, consistency)
     }
 
@@ -259,6 +262,12 @@ impl RayErrors {
             loss: loss.sum(),
         }
     }
+
+    /// Adds `weight · Σ_r Σ_k α_rk (1 − α_rk)` for the rays' sample opacities `alpha` `[R, S]`.
+    fn add_hard_surface(&mut self, alpha: &Tensor<2>, weight: f32) {
+        let binary = alpha.clone() * (alpha.clone().neg() + 1.0);
+        self.loss = self.loss.clone() + binary.sum() * weight;
+    }
 }
 
 #[cfg(test)]
@@ -359,5 +368,64 @@ mod tests {
                 Tolerance::Relative(1e-4),
             );
         }
+    }
+
+    /// The hard-surface prior against its definition in f64: `weight · Σ_r Σ_k α_rk (1 − α_rk)` with
+    /// `α = 1 − exp(−σ δ)` of each composited sample, and its gradient in the densities,
+    /// `weight · (1 − 2α)(1 − α) δ` (zero where the ReLU clips σ).
+    #[test]
+    fn the_hard_surface_prior_is_each_samples_binary_variance() {
+        let device = cpu_device().autodiff();
+        let sigma = [[0.5f32, 4.0, -1.0, 30.0], [0.0, 12.0, 2.5, 0.2]];
+        let depths = [[1.0f32, 1.1, 1.3, 1.35], [2.0, 2.05, 2.2, 2.4]];
+        let density = from_rows(sigma.as_flattened(), 2, 4, &device).require_grad();
+        let out = anerf_core::render::composite(
+            density.clone(),
+            Tensor::zeros([2, 4, 3], &device),
+            from_rows(depths.as_flattened(), 2, 4, &device),
+        );
+        let cfg = config::assemble(
+            config::demo_table(),
+            &Settings::default(),
+            &["train.hard_surface_weight=0.3".to_string()],
+        )
+        .unwrap()
+        .train;
+        let mut errors = RayErrors::new(
+            out.rgb.clone(),
+            Tensor::zeros([2, 3], &device),
+            None,
+            None,
+            &cfg,
+        );
+        errors.add_hard_surface(&out.alpha, cfg.hard_surface_weight);
+        let (mut expected, mut gradient) = (0.0f64, Vec::new());
+        for r in 0..2 {
+            for k in 0..4 {
+                // The last interval repeats the one before it.
+                let delta = depths[r][k.min(2) + 1] as f64 - depths[r][k.min(2)] as f64;
+                let s = (sigma[r][k] as f64).max(0.0);
+                let alpha = 1.0 - (-s * delta).exp();
+                expected += 0.3 * alpha * (1.0 - alpha);
+                let active = if sigma[r][k] > 0.0 { 1.0 } else { 0.0 };
+                gradient.push(0.3 * (1.0 - 2.0 * alpha) * (1.0 - alpha) * delta * active);
+            }
+        }
+        let loss = errors.loss;
+        assert_close(
+            "prior",
+            &to_host(loss.clone()),
+            &[expected as f32],
+            Tolerance::Relative(1e-5),
+        );
+        let grads = loss.backward();
+        let got = to_host(density.grad(&grads).expect("the densities get a gradient"));
+        let gradient: Vec<f32> = gradient.into_iter().map(|g| g as f32).collect();
+        assert_close(
+            "density gradient",
+            &got,
+            &gradient,
+            Tolerance::Absolute(1e-6),
+        );
     }
 }

@@ -99,6 +99,7 @@ mod tests {
             log_every: 1,
             mask_edges: MaskEdges::Skip,
             mask_weight: 0.0,
+            hard_surface_weight: 0.0,
             residual_weight: 0.0,
             plateau_steps: 0,
             plateau_tolerance: 0.01,
