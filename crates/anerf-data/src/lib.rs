@@ -22,7 +22,9 @@ pub use error::DataError;
 pub use info::{inspect, InspectOptions, Report};
 pub use loaders::{load, load_h36m, load_zju_mocap, LoadOptions};
 pub use prepare::{prepare, prepare_with, PrepareOptions, PrepareProgress, PreparedSubject};
-pub use sampler::{image_rays, ImageRays, ImageView, MaskEdges, RaySampler, SamplerOptions};
+pub use sampler::{
+    image_rays, ImageRays, ImageView, MaskEdges, RaySampler, SamplerOptions, StepImages,
+};
 pub use subject::{
     BodyModel, DatasetKind, FittedPose, FrameRecord, PosedVertices, SkinningWeights, Subject,
 };

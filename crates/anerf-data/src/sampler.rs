@@ -68,7 +68,7 @@ impl MaskEdges {
 /// How training rays are drawn.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct SamplerOptions {
-    /// Rays per image (`N_rand`).
+    /// Rays per step (`N_rand`), split over the step's images ([`RaySampler::sample_step`]).
     pub rays: usize,
     /// Share of rays drawn on the body mask (`body_sample_ratio`); the rest uniformly in the projected box.
     pub body_fraction: f32,
@@ -127,6 +127,13 @@ pub struct ImageView<'a> {
     /// The mask-edge band (row-major), as prepared from the full-resolution mask; `None`: computed from
     /// `mask` at this resolution.
     pub edge: Option<&'a [bool]>,
+}
+
+/// One image set of a training step: a frame and the views its rays are drawn from.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct StepImages {
+    pub frame: FrameId,
+    pub views: Vec<ViewId>,
 }
 
 /// Draws training rays, deterministically from its seed; its whole state serialises, so a resumed run
@@ -256,22 +263,64 @@ impl RaySampler {
         }
     }
 
-    /// Reads `views` of one frame of a prepared subject and draws `options.rays` rays from them, split as
-    /// evenly as whole rays allow (the first views take the remainder), concatenated view after view.
+    /// Picks a step's images: `frames` distinct training frames (all of them where there are fewer), each
+    /// with `views` distinct views, every frame drawn by [`Self::pick`] among the frames not yet picked (so
+    /// one frame a step draws the one-frame stream). `None` as `pick` returns it.
+    pub fn pick_step(
+        &mut self,
+        frames: &[FrameId],
+        views: &[ViewId],
+        frame_count: usize,
+        view_count: usize,
+    ) -> Option<Vec<StepImages>> {
+        if frame_count == 0 {
+            return None;
+        }
+        let mut left = frames.to_vec();
+        let mut picked = Vec::new();
+        while picked.len() < frame_count && !left.is_empty() {
+            let (frame, views) = self.pick(&left, views, view_count)?;
+            left.retain(|&f| f != frame);
+            picked.push(StepImages { frame, views });
+        }
+        (!picked.is_empty()).then_some(picked)
+    }
+
+    /// Draws one step's `options.rays` rays from `images` ([`Self::pick_step`]): split over the frames as
+    /// evenly as whole rays allow (the first take the remainder), each frame's share drawn by
+    /// [`Self::sample_prepared`].
+    pub fn sample_step(
+        &mut self,
+        subject: &PreparedSubject,
+        images: &[StepImages],
+    ) -> Result<Vec<HostRays>, SamplerError> {
+        let total = self.options.rays;
+        images
+            .iter()
+            .enumerate()
+            .map(|(k, step)| {
+                let n = total / images.len() + usize::from(k < total % images.len());
+                self.sample_prepared(subject, step.frame, &step.views, n)
+            })
+            .collect()
+    }
+
+    /// Reads `views` of one frame of a prepared subject and draws `rays` rays from them, split as evenly
+    /// as whole rays allow (the first views take the remainder), concatenated view after view.
     pub fn sample_prepared(
         &mut self,
         subject: &PreparedSubject,
         frame: FrameId,
         views: &[ViewId],
+        rays: usize,
     ) -> Result<HostRays, SamplerError> {
         let bounds = subject
             .frame(frame)
             .ok_or_else(|| DataError::invalid(&subject.dir, format!("{frame} was not prepared")))?
             .bounds;
-        let total = self.options.rays;
         let mut out = HostRays::default();
         for (k, &view) in views.iter().enumerate() {
-            let n = total / views.len() + usize::from(k < total % views.len());
+            let n = rays / views.len() + usize::from(k < rays % views.len());
             let image = subject.image(frame, view)?;
             let (mask, edge) = subject.mask_and_edge(frame, view)?;
             let rays = self.sample(

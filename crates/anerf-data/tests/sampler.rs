@@ -8,7 +8,7 @@ use anerf_data::prepare::{FrameSelection, ImageScale};
 use anerf_data::sampler::box_mask;
 use anerf_data::{
     image_rays, load_zju_mocap, prepare, LoadOptions, MaskEdges, PrepareOptions, PreparedSubject,
-    RaySampler, SamplerOptions,
+    RaySampler, SamplerOptions, StepImages,
 };
 use anerf_testing::fixture;
 use image::GrayImage;
@@ -106,7 +106,7 @@ fn training_rays_follow_the_reference_scheme() {
         ..SamplerOptions::default()
     };
     let mut sampler = RaySampler::new(11, options.clone());
-    let rays = sampler.sample_prepared(&p, frame, &[view]).unwrap();
+    let rays = sampler.sample_prepared(&p, frame, &[view], 500).unwrap();
     assert_eq!(rays.len(), 500);
     let mut on_body = 0;
     for k in 0..rays.len() {
@@ -147,7 +147,7 @@ fn a_trained_band_is_drawn_with_the_masks_labels_and_marked() {
             ..SamplerOptions::default()
         };
         RaySampler::new(5, options)
-            .sample_prepared(&p, frame, &[view])
+            .sample_prepared(&p, frame, &[view], 4000)
             .unwrap()
     };
     let rays = draw(MaskEdges::Train);
@@ -182,8 +182,8 @@ fn sampling_is_deterministic_and_resumes_from_serialised_state() {
     let run = |sampler: &mut RaySampler, n: usize| {
         (0..n)
             .map(|_| {
-                let (f, v) = sampler.pick(&frames, &views, 2).unwrap();
-                sampler.sample_prepared(&p, f, &v).unwrap()
+                let images = sampler.pick_step(&frames, &views, 2, 2).unwrap();
+                sampler.sample_step(&p, &images).unwrap()
             })
             .collect::<Vec<_>>()
     };
@@ -257,7 +257,7 @@ fn several_views_a_step_draw_distinct_views_of_one_frame_split_evenly() {
         assert!(v3.iter().all(|v| views.contains(v)));
         seen.extend(v3[1..].iter().copied());
         // Keep the two streams aligned: the three-view pick drew two more numbers.
-        let rays = three.sample_prepared(&p, f3, &v3).unwrap();
+        let rays = three.sample_prepared(&p, f3, &v3, 100).unwrap();
         assert_eq!(rays.len(), 100);
         for (k, range) in [(0, 0..34), (1, 34..67), (2, 67..100)] {
             let centre = p.cameras[v3[k].0].center();
@@ -279,4 +279,56 @@ fn several_views_a_step_draw_distinct_views_of_one_frame_split_evenly() {
     );
     assert!(one.pick(&frames, &views, views.len() + 1).is_none());
     assert!(one.pick(&frames, &views, 0).is_none());
+}
+
+/// Several frames a step: distinct frames, the first drawn as one frame a step draws it, the step's rays
+/// split evenly over the frames (the first taking the remainder) and each frame's share over its views;
+/// more frames than the subject has give all of them.
+#[test]
+fn several_frames_a_step_draw_distinct_frames_and_split_the_rays_evenly() {
+    let dir = tempfile::tempdir().unwrap();
+    let p = prepared(dir.path());
+    let frames = [FrameId(0), FrameId(1)];
+    let views: Vec<ViewId> = p.views.clone();
+    let options = SamplerOptions {
+        rays: 101,
+        ..SamplerOptions::default()
+    };
+    let (mut one, mut two) = (
+        RaySampler::new(9, options.clone()),
+        RaySampler::new(9, options.clone()),
+    );
+    let mut firsts = std::collections::BTreeSet::new();
+    for _ in 0..12 {
+        let single = one.pick(&frames, &views, 2).unwrap();
+        let images = two.pick_step(&frames, &views, 2, 2).unwrap();
+        assert_eq!(
+            images[0],
+            StepImages {
+                frame: single.0,
+                views: single.1
+            },
+            "the first frame is the one-frame stream's"
+        );
+        assert_eq!(images.len(), 2);
+        assert_ne!(images[0].frame, images[1].frame, "frames repeat");
+        firsts.insert(images[0].frame);
+        let rays = two.sample_step(&p, &images).unwrap();
+        assert_eq!(rays.iter().map(|r| r.len()).collect::<Vec<_>>(), [51, 50]);
+        for (step, rays) in images.iter().zip(&rays) {
+            // The frame's share, split over its two views: the first view's rays leave its camera.
+            let split = rays.len() / 2 + rays.len() % 2;
+            for (i, o) in rays.origins.iter().enumerate() {
+                let view = step.views[usize::from(i >= split)];
+                let centre = p.cameras[view.0].center();
+                assert!((glam::Vec3::from(*o) - centre).length() < 1e-4);
+            }
+        }
+        one = two.clone();
+    }
+    assert_eq!(firsts.len(), 2, "either frame comes first");
+    let all = one.pick_step(&frames, &views, 5, 1).unwrap();
+    assert_eq!(all.len(), 2, "at most the subject's frames");
+    assert!(one.pick_step(&frames, &views, 0, 1).is_none());
+    assert!(one.pick_step(&[], &views, 1, 1).is_none());
 }

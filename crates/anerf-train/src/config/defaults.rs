@@ -51,6 +51,7 @@ impl StageConfig {
             iterations: schedule.train_iterations,
             batch: 1024,
             views_per_step: schedule.train_views_per_step,
+            frames_per_step: 1,
             lr,
             lr_final,
             schedule: LrSchedule::Paper,

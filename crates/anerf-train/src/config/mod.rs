@@ -249,6 +249,12 @@ pub struct StageConfig {
     /// rays more variety (the `fast` preset draws 4).
     #[serde(default = "one")]
     pub views_per_step: usize,
+    /// Stage 1: how many distinct training frames a step's rays are drawn from, split evenly, each with
+    /// `views_per_step` views (all of them where there are fewer; 1: one frame a step, as the reference).
+    /// Several frames let a pose refinement's per-frame corrections move on more steps, and give the
+    /// canonical field rays of more poses a step.
+    #[serde(default = "one")]
+    pub frames_per_step: usize,
     pub lr: f64,
     pub lr_final: f64,
     pub schedule: LrSchedule,

@@ -187,6 +187,13 @@ fn errors_name_the_key_and_the_allowed_values() {
         err.contains("train.views_per_step") && err.contains("1 up to the batch"),
         "{err}"
     );
+    for frames in ["train.frames_per_step=0", "train.frames_per_step=100000"] {
+        let err = load(&p, &[frames.into()]).unwrap_err().to_string();
+        assert!(
+            err.contains("train.frames_per_step") && err.contains("batch over views_per_step"),
+            "{frames}: {err}"
+        );
+    }
     let err = load(&p, &["train.typo=1".into()]).unwrap_err().to_string();
     assert!(err.contains("typo"), "{err}");
     let err = load(&p, &["device=tpu".into()]).unwrap_err().to_string();

@@ -125,6 +125,13 @@ impl StageConfig {
                 "1 up to the batch (each view gets a ray at least)",
             );
         }
+        if self.frames_per_step == 0 || self.frames_per_step * self.views_per_step > self.batch {
+            return bad(
+                "frames_per_step",
+                &self.frames_per_step,
+                "1 up to the batch over views_per_step (each image gets a ray at least)",
+            );
+        }
         for (key, rate) in [("lr", self.lr), ("lr_final", self.lr_final)] {
             if !(rate.is_finite() && rate > 0.0) {
                 return bad(key, &rate, "a positive, finite rate");

@@ -90,6 +90,7 @@ mod tests {
             iterations: 200_000,
             batch: 1024,
             views_per_step: 1,
+            frames_per_step: 1,
             lr: 5e-4,
             lr_final: 5e-5,
             schedule,

@@ -147,10 +147,15 @@ fn fresh_start(exp: &Experiment, cfg: &StageConfig) -> (AnimatableNerf, TrainerS
     (model, state)
 }
 
-/// One stage-1 step's rays on the host: a random training frame, the rays sampled from
-/// `train.views_per_step` of its training views, their depth jitter, and the frame's inputs on each
-/// replica's device.
+/// One stage-1 step's rays on the host: `train.frames_per_step` random training frames, each with
+/// the rays sampled from `train.views_per_step` of its views.
 struct RayStep {
+    frames: Vec<FrameRays>,
+}
+
+/// One frame's part of a step: its rays, their depth jitter, and the frame's inputs on each replica's
+/// device.
+struct FrameRays {
     frame: FrameId,
     rays: HostRays,
     /// `[R·S]` uniform numbers in `[0, 1)`, `S` per ray.
@@ -158,7 +163,14 @@ struct RayStep {
     inputs: Vec<FrameInputs>,
 }
 
-/// A stage-1 step: one ray batch of a random training frame and some of its views, rendered and compared.
+impl RayStep {
+    fn rays(&self) -> usize {
+        self.frames.iter().map(|f| f.rays.len()).sum()
+    }
+}
+
+/// A stage-1 step: one ray batch of some random training frames and some of their views, rendered and
+/// compared.
 struct Stage1<'a> {
     exp: &'a mut Experiment,
     cfg: &'a StageConfig,
@@ -268,79 +280,95 @@ impl ShardedStep for Stage1<'_> {
             .sampler
             .as_mut()
             .expect("stage 1 keeps a sampler");
-        let count = self.cfg.views_per_step.min(exp.train_views.len());
-        let (frame, views) = sampler
-            .pick(&exp.train_frames, &exp.train_views, count)
-            .expect("frames and views exist, and views_per_step is at least 1");
+        let views = self.cfg.views_per_step.min(exp.train_views.len());
+        let images = sampler
+            .pick_step(
+                &exp.train_frames,
+                &exp.train_views,
+                self.cfg.frames_per_step,
+                views,
+            )
+            .expect(
+                "frames and views exist, and frames_per_step and views_per_step are at least 1",
+            );
         let rays = sampler
-            .sample_prepared(&exp.prepared, frame, &views)
-            .with_context(|| format!("sampling rays of {frame}, views {views:?}"))?;
+            .sample_step(&exp.prepared, &images)
+            .with_context(|| format!("sampling rays of {images:?}"))?;
         let samples = exp.config.model.samples_per_ray;
-        let rng = &mut self.state.rng;
-        let jitter = (0..rays.len() * samples)
-            .map(|_| rng.random::<f32>())
-            .collect();
         // Before the refinement's start the frames render with their given fits (and their corrections
         // get no gradient and no penalty).
         let refinement = &exp.config.model.pose_refinement;
         let refining =
             self.state.counters.step as f32 >= refinement.start * self.cfg.iterations as f32;
-        let inputs = (0..replicas)
-            .map(|k| {
-                let inputs = exp.frame_inputs_on(frame, k)?;
-                Ok(if refining {
-                    inputs
-                } else {
-                    FrameInputs {
-                        basis: None,
-                        ..inputs
-                    }
+        let rng = &mut self.state.rng;
+        let frames = images
+            .iter()
+            .zip(rays)
+            .map(|(image, rays)| {
+                let jitter = (0..rays.len() * samples)
+                    .map(|_| rng.random::<f32>())
+                    .collect();
+                let inputs = (0..replicas)
+                    .map(|k| {
+                        let inputs = exp.frame_inputs_on(image.frame, k)?;
+                        Ok(if refining {
+                            inputs
+                        } else {
+                            FrameInputs {
+                                basis: None,
+                                ..inputs
+                            }
+                        })
+                    })
+                    .collect::<Result<_>>()?;
+                Ok(FrameRays {
+                    frame: image.frame,
+                    rays,
+                    jitter,
+                    inputs,
                 })
             })
             .collect::<Result<_>>()?;
-        Ok(RayStep {
-            frame,
-            rays,
-            jitter,
-            inputs,
-        })
+        Ok(RayStep { frames })
     }
 
-    /// The [`Objective`] of this shard's rays, plus the pose refinement's regulariser.
+    /// The [`Objective`] of this shard's rays, plus the pose refinement's regulariser: each frame's
+    /// terms weighed by its share of the step's rays, so that a step of several frames weighs every ray
+    /// as one frame a step does.
     fn shard_loss(
         &self,
         batch: &RayStep,
         shard: &Shard<'_>,
         model: &AnimatableNerf,
     ) -> Result<(Tensor<1>, StepValues)> {
-        let cfg = self.cfg;
-        let model_cfg = model.config();
         // The replica's device as the experiment holds it (with autodiff): the model's parameters report
         // theirs without, and the renderer builds its outputs on the rays' device.
         let device = self.exp.replica_device(shard.index);
-        let part = shard.part(batch.rays.len());
-        let samples = model_cfg.samples_per_ray;
-        let rays = RayBatch::new(&batch.rays.slice(part.clone()), batch.frame, device);
-        let jitter = from_rows(
-            &batch.jitter[part.start * samples..part.end * samples],
-            part.len(),
-            samples,
-            device,
-        );
-        let out = model.render(
-            &rays,
-            &batch.inputs[shard.index],
-            self.exp.canonical_on(shard.index),
-            Some(jitter),
-            model_cfg.neural_blend_weights,
-        );
-        let sums = TermSums::new(&out, &rays, cfg, model_cfg.consistency);
-        let totals = sums.totals(shard, device);
-        let WeighedTerms { loss, mse, blend } = Objective { cfg }.weigh(sums, totals, shard.count);
-        let loss = match self.pose_penalty(model, &batch.inputs[shard.index]) {
-            Some(penalty) => loss + penalty,
-            None => loss,
-        };
+        let total = batch.rays() as f32;
+        let mut sum: Option<WeighedTerms> = None;
+        let (mut surviving, mut occupied, mut samples, mut items) = (0, 0, 0, 0);
+        for frame in &batch.frames {
+            let share = frame.rays.len() as f32 / total;
+            let (terms, out) = self.frame_terms(frame, shard, model, device);
+            surviving += out.surviving_samples;
+            occupied += out.occupied_samples;
+            samples += out.total_samples;
+            items += out.rays;
+            let scaled = WeighedTerms {
+                loss: terms.loss * share,
+                mse: terms.mse * share,
+                blend: terms.blend.map(|b| b * share),
+            };
+            sum = Some(match sum {
+                None => scaled,
+                Some(s) => WeighedTerms {
+                    loss: s.loss + scaled.loss,
+                    mse: s.mse + scaled.mse,
+                    blend: s.blend.zip(scaled.blend).map(|(a, b)| a + b),
+                },
+            });
+        }
+        let WeighedTerms { loss, mse, blend } = sum.expect("a step has a frame at least");
         // One transfer for the three logged values.
         let values = to_host(Tensor::cat(
             vec![
@@ -354,18 +382,69 @@ impl ShardedStep for Stage1<'_> {
             loss: values[0],
             mse: values[1],
             blend: values[2],
-            surviving: out.surviving_samples as f32 / out.total_samples as f32,
-            occupied: out.occupied_samples as f32 / out.total_samples as f32,
-            items: rays.len(),
+            surviving: surviving as f32 / samples as f32,
+            occupied: occupied as f32 / samples as f32,
+            items,
         };
         Ok((loss, logged))
     }
+}
+
+/// What [`Stage1::frame_terms`] counted of one frame's render.
+struct RenderCounts {
+    rays: usize,
+    surviving_samples: usize,
+    occupied_samples: usize,
+    total_samples: usize,
 }
 
 /// Steps between checks that the pose refinement stayed within its bounds.
 const POSE_CHECK_EVERY: usize = 100;
 
 impl Stage1<'_> {
+    /// One frame's rays of this shard rendered, and the [`Objective`]'s terms of them plus the frame's
+    /// pose regulariser, as a one-frame step weighs them.
+    fn frame_terms(
+        &self,
+        frame: &FrameRays,
+        shard: &Shard<'_>,
+        model: &AnimatableNerf,
+        device: &Device,
+    ) -> (WeighedTerms, RenderCounts) {
+        let cfg = self.cfg;
+        let model_cfg = model.config();
+        let part = shard.part(frame.rays.len());
+        let samples = model_cfg.samples_per_ray;
+        let rays = RayBatch::new(&frame.rays.slice(part.clone()), frame.frame, device);
+        let jitter = from_rows(
+            &frame.jitter[part.start * samples..part.end * samples],
+            part.len(),
+            samples,
+            device,
+        );
+        let inputs = &frame.inputs[shard.index];
+        let out = model.render(
+            &rays,
+            inputs,
+            self.exp.canonical_on(shard.index),
+            Some(jitter),
+            model_cfg.neural_blend_weights,
+        );
+        let sums = TermSums::new(&out, &rays, cfg, model_cfg.consistency);
+        let totals = sums.totals(shard, device);
+        let mut terms = Objective { cfg }.weigh(sums, totals, shard.count);
+        if let Some(penalty) = self.pose_penalty(model, inputs) {
+            terms.loss = terms.loss + penalty;
+        }
+        let counts = RenderCounts {
+            rays: rays.len(),
+            surviving_samples: out.surviving_samples,
+            occupied_samples: out.occupied_samples,
+            total_samples: out.total_samples,
+        };
+        (terms, counts)
+    }
+
     /// The pose refinement's regulariser for the batch's frame (the same on every shard, so that the
     /// shards' average is it); `None` without refinement or before its start.
     fn pose_penalty(&self, model: &AnimatableNerf, inputs: &FrameInputs) -> Option<Tensor<1>> {
@@ -395,6 +474,78 @@ mod tests {
     use anerf_testing::{assert_close, Tolerance};
     use burn::optim::GradientsParams;
 
+    /// The tiny synthetic subject's stage-1 experiment (batch 256, every loss term on, `set` on top) with
+    /// `replicas` data-parallel flex devices, and a run folder, in `dir`.
+    fn tiny_experiment(
+        dir: &std::path::Path,
+        set: &[&str],
+        replicas: usize,
+    ) -> (Experiment, RunDir) {
+        let subject = dir.join("subject");
+        write_subject(&SyntheticSpec::tiny(), &subject).unwrap();
+        let settings = Settings {
+            root: Some(subject),
+            cache: Some(dir.join("cache")),
+            preset: Some(ModelPreset::Tiny),
+            train_views: Some(vec![0, 2]),
+            train_frames: Some("0:6".parse().unwrap()),
+            novel_pose_frames: Some("6:10".parse().unwrap()),
+            ..Settings::default()
+        };
+        let set: Vec<String> = [
+            "train.batch=256",
+            "train.mask_weight=0.1",
+            "train.mask_edges=robust",
+            "train.residual_weight=0.01",
+        ]
+        .iter()
+        .chain(set)
+        .map(|s| s.to_string())
+        .collect();
+        let config = config::assemble(config::demo_table(), &settings, &set).unwrap();
+        let device = cpu_device().autodiff();
+        let mut exp = Experiment::open(config, device.clone(), false).unwrap();
+        if replicas > 1 {
+            exp = exp.with_data_parallel(vec![device; replicas]).unwrap();
+        }
+        (exp, RunDir::create(&dir.join("run")).unwrap())
+    }
+
+    /// A fresh model and the stage-1 step that trains it from its first step.
+    fn fresh_stage1<'a>(
+        exp: &'a mut Experiment,
+        cfg: &'a StageConfig,
+        run: &'a RunDir,
+    ) -> (AnimatableNerf, Stage1<'a>) {
+        let (model, state) = fresh_start(exp, cfg);
+        let step = Stage1 {
+            record: Record::open(run, Stage::Train, 0).unwrap(),
+            exp,
+            cfg,
+            state,
+        };
+        (model, step)
+    }
+
+    /// Each of `count` shards' logged values and parameter gradients for `batch`.
+    fn loss_and_gradients(
+        step: &Stage1<'_>,
+        batch: &RayStep,
+        model: &AnimatableNerf,
+        count: usize,
+    ) -> Vec<(StepValues, Vec<f32>)> {
+        run_shards(count, |shard| {
+            let (loss, values) = step.shard_loss(batch, &shard, model).unwrap();
+            let grads = GradientsParams::from_grads(loss.backward(), model);
+            let grads: Vec<f32> = parameter_gradients(model, &grads)
+                .into_iter()
+                .flatten()
+                .flatten()
+                .collect();
+            (values, grads)
+        })
+    }
+
     /// The weighted losses of a batch split into shards average to the whole batch's loss, and their
     /// gradients (as Burn's all-reduce averages them) to its gradients: every term (colour, silhouette,
     /// consistency, residual penalty) is a mean over the batch, not over a shard. Both shards run here on
@@ -402,53 +553,11 @@ mod tests {
     #[test]
     fn shards_of_a_batch_average_to_its_loss_and_gradients() {
         let dir = tempfile::tempdir().unwrap();
-        let subject = dir.path().join("subject");
-        write_subject(&SyntheticSpec::tiny(), &subject).unwrap();
-        let settings = Settings {
-            root: Some(subject),
-            cache: Some(dir.path().join("cache")),
-            preset: Some(ModelPreset::Tiny),
-            train_views: Some(vec![0, 2]),
-            train_frames: Some("0:6".parse().unwrap()),
-            novel_pose_frames: Some("6:10".parse().unwrap()),
-            ..Settings::default()
-        };
-        let set = [
-            "train.batch=256",
-            "train.mask_weight=0.1",
-            "train.mask_edges=robust",
-            "train.residual_weight=0.01",
-        ]
-        .map(String::from);
-        let config = config::assemble(config::demo_table(), &settings, &set).unwrap();
-        let device = cpu_device().autodiff();
-        let mut exp = Experiment::open(config, device.clone(), false)
-            .unwrap()
-            .with_data_parallel(vec![device.clone(); 3])
-            .unwrap();
-        let run = RunDir::create(&dir.path().join("run")).unwrap();
+        let (mut exp, run) = tiny_experiment(dir.path(), &[], 3);
         let cfg = exp.config.train.clone();
-        let (model, state) = fresh_start(&exp, &cfg);
-        let mut step = Stage1 {
-            record: Record::open(&run, Stage::Train, 0).unwrap(),
-            exp: &mut exp,
-            cfg: &cfg,
-            state,
-        };
+        let (model, mut step) = fresh_stage1(&mut exp, &cfg, &run);
         let batch = step.batch(3).unwrap();
-        let split = |count: usize| {
-            let step = &step;
-            run_shards(count, |shard| {
-                let (loss, values) = step.shard_loss(&batch, &shard, &model).unwrap();
-                let grads = GradientsParams::from_grads(loss.backward(), &model);
-                let grads: Vec<f32> = parameter_gradients(&model, &grads)
-                    .into_iter()
-                    .flatten()
-                    .flatten()
-                    .collect();
-                (values, grads)
-            })
-        };
+        let split = |count: usize| loss_and_gradients(&step, &batch, &model, count);
         let whole = split(1).remove(0);
         assert!(
             whole.0.blend > 0.0 && whole.0.mse > 0.0,
@@ -480,6 +589,78 @@ mod tests {
             "averaged shard gradients vs the whole batch's",
             &averaged,
             &whole.1,
+            Tolerance::Relative(1e-4),
+        );
+    }
+
+    /// A step of several frames weighs each frame's terms (colour, silhouette, consistency, residual, and
+    /// its pose regulariser) by its share of the step's rays: its loss and gradients are the
+    /// share-weighted sums of the one-frame steps of the same rays.
+    #[test]
+    fn a_step_of_several_frames_weighs_each_by_its_share_of_the_rays() {
+        let dir = tempfile::tempdir().unwrap();
+        let (mut exp, run) = tiny_experiment(
+            dir.path(),
+            &[
+                "train.frames_per_step=3",
+                "train.batch=250",
+                "model.pose_refinement.enabled=true",
+            ],
+            1,
+        );
+        let cfg = exp.config.train.clone();
+        let (model, mut step) = fresh_stage1(&mut exp, &cfg, &run);
+        let batch = step.batch(1).unwrap();
+        let frames: Vec<FrameId> = batch.frames.iter().map(|f| f.frame).collect();
+        assert_eq!(frames.len(), 3);
+        assert!(frames[0] != frames[1] && frames[1] != frames[2] && frames[0] != frames[2]);
+        assert!(batch.frames.iter().all(|f| f.inputs[0].basis.is_some()));
+        let whole = loss_and_gradients(&step, &batch, &model, 1).remove(0);
+        let shares: Vec<f32> = batch
+            .frames
+            .iter()
+            .map(|f| f.rays.len() as f32 / 250.0)
+            .collect();
+        assert!((shares.iter().sum::<f32>() - 1.0).abs() < 1e-6);
+        let singles: Vec<_> = batch
+            .frames
+            .into_iter()
+            .map(|f| {
+                let one = RayStep { frames: vec![f] };
+                loss_and_gradients(&step, &one, &model, 1).remove(0)
+            })
+            .collect();
+        let weighed = |f: &dyn Fn(&StepValues) -> f32| {
+            singles
+                .iter()
+                .zip(&shares)
+                .map(|((v, _), w)| w * f(v))
+                .sum::<f32>()
+        };
+        for (what, got, expected) in [
+            ("loss", whole.0.loss, weighed(&|v| v.loss)),
+            ("colour MSE", whole.0.mse, weighed(&|v| v.mse)),
+            ("blend terms", whole.0.blend, weighed(&|v| v.blend)),
+        ] {
+            assert!(
+                expected > 0.0 && (got - expected).abs() <= 1e-5 * expected,
+                "{what}: three frames {got}, share-weighted single frames {expected}"
+            );
+        }
+        assert_eq!(whole.0.items, 250);
+        let expected: Vec<f32> = (0..whole.1.len())
+            .map(|i| {
+                singles
+                    .iter()
+                    .zip(&shares)
+                    .map(|((_, g), w)| w * g[i])
+                    .sum()
+            })
+            .collect();
+        assert_close(
+            "three frames' gradients vs the share-weighted single frames'",
+            &whole.1,
+            &expected,
             Tolerance::Relative(1e-4),
         );
     }
