@@ -118,6 +118,11 @@ fn a_short_run_on_an_easymocap_capture_lowers_the_loss() {
         config.model.pose_refinement.enabled,
         "a capture's fitted poses are refined"
     );
+    assert_eq!(
+        config.train.frames_per_step,
+        config::REFINED_FRAMES_PER_STEP,
+        "with several frames a step"
+    );
     let run = trained(&config, dir.path());
     assert_loss_falls(&losses(&run));
 }
