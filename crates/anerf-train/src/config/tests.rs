@@ -187,8 +187,15 @@ fn errors_name_the_key_and_the_allowed_values() {
         err.contains("train.views_per_step") && err.contains("1 up to the batch"),
         "{err}"
     );
-    for frames in ["train.frames_per_step=0", "train.frames_per_step=100000"] {
-        let err = load(&p, &[frames.into()]).unwrap_err().to_string();
+    for frames in [
+        "train.frames_per_step=0",
+        "train.frames_per_step=100000",
+        "train.frames_per_step=9223372036854775807",
+    ] {
+        // Four views a step: the largest count times four does not fit a usize.
+        let err = load(&p, &[frames.into(), "train.views_per_step=4".into()])
+            .unwrap_err()
+            .to_string();
         assert!(
             err.contains("train.frames_per_step") && err.contains("batch over views_per_step"),
             "{frames}: {err}"

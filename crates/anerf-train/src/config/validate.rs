@@ -125,7 +125,9 @@ impl StageConfig {
                 "1 up to the batch (each view gets a ray at least)",
             );
         }
-        if self.frames_per_step == 0 || self.frames_per_step * self.views_per_step > self.batch {
+        if self.frames_per_step == 0
+            || self.frames_per_step.saturating_mul(self.views_per_step) > self.batch
+        {
             return bad(
                 "frames_per_step",
                 &self.frames_per_step,

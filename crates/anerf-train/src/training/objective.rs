@@ -169,6 +169,26 @@ pub struct WeighedTerms {
     pub blend: Option<Tensor<1>>,
 }
 
+impl WeighedTerms {
+    /// Every term times `share` plus `rest`'s (`None`: nothing yet): a step's terms summed over its
+    /// frames, each weighed by its share of the step's rays.
+    pub fn weighed_onto(self, share: f32, rest: Option<Self>) -> Self {
+        let (loss, mse, blend) = (
+            self.loss * share,
+            self.mse * share,
+            self.blend.map(|b| b * share),
+        );
+        match rest {
+            None => Self { loss, mse, blend },
+            Some(r) => Self {
+                loss: r.loss + loss,
+                mse: r.mse + mse,
+                blend: r.blend.zip(blend).map(|(a, b)| a + b),
+            },
+        }
+    }
+}
+
 /// The stage-1 loss's weights: colour and silhouette (with the band's robust loss) from the stage's
 /// config, the consistency at weight 1 (the paper), the residual penalty at `residual_weight`.
 pub struct Objective<'a> {

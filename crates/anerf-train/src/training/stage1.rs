@@ -354,19 +354,7 @@ impl ShardedStep for Stage1<'_> {
             occupied += out.occupied_samples;
             samples += out.total_samples;
             items += out.rays;
-            let scaled = WeighedTerms {
-                loss: terms.loss * share,
-                mse: terms.mse * share,
-                blend: terms.blend.map(|b| b * share),
-            };
-            sum = Some(match sum {
-                None => scaled,
-                Some(s) => WeighedTerms {
-                    loss: s.loss + scaled.loss,
-                    mse: s.mse + scaled.mse,
-                    blend: s.blend.zip(scaled.blend).map(|(a, b)| a + b),
-                },
-            });
+            sum = Some(terms.weighed_onto(share, sum));
         }
         let WeighedTerms { loss, mse, blend } = sum.expect("a step has a frame at least");
         // One transfer for the three logged values.
