@@ -10,7 +10,7 @@ use glam::Vec3;
 use rayon::prelude::*;
 
 use crate::geometry::skinning::world_to_pose;
-use crate::geometry::{BoneMatrices, GlobalTransform, VolumeTensor};
+use crate::geometry::{BlendedAffines, BoneMatrices, GlobalTransform, VolumeTensor};
 use crate::render::RayBatch;
 use crate::tensor::to_host;
 
@@ -75,21 +75,10 @@ pub struct HostWarp {
 }
 
 impl HostWarp {
-    /// `p + Σ_k w_k (D_k − I) p` with the prior weights `w` at `p` (`scratch` holds them, `K` long).
-    fn apply(&self, volume: &VolumeTensor, p: Vec3, scratch: &mut [f32]) -> Vec3 {
-        scratch.fill(0.0);
-        volume.weights_into(p, scratch);
-        let mut m = [0.0f32; 12];
-        for (w, row) in scratch.iter().zip(&self.rows) {
-            for (a, b) in m.iter_mut().zip(row) {
-                *a += w * b;
-            }
-        }
-        p + Vec3::new(
-            m[0] * p.x + m[1] * p.y + m[2] * p.z + m[3],
-            m[4] * p.x + m[5] * p.y + m[6] * p.z + m[7],
-            m[8] * p.x + m[9] * p.y + m[10] * p.z + m[11],
-        )
+    /// The warp's displacement field on `volume`'s nodes: `Σ_k w_k (D_k − I)` blended at each node by the
+    /// prior weights there, with its bound ([`VolumeTensor::blend_affines`]).
+    fn blend(&self, volume: &VolumeTensor) -> BlendedAffines {
+        volume.blend_affines(&self.rows)
     }
 }
 
@@ -175,33 +164,28 @@ pub fn cull_samples(
         rotation_t
             * (ray_vec(rays.origins, r) + ray_vec(rays.directions, r) * rays.depths[i] - global.th)
     };
-    let k = volume.num_joints();
     // Where the sample's distance is measured: where the given body has its point.
-    let measured = |p: Vec3, scratch: &mut Vec<f32>| match warp {
-        Some(w) => w.apply(volume, p, scratch),
+    let affines = warp.map(|w| w.blend(volume));
+    let measured = |p: Vec3| match &affines {
+        Some(a) => p + volume.displacement(a, p),
         None => p,
     };
     let n = rays.depths.len();
     let mut near: Vec<(i64, Vec3)> = (0..n)
         .into_par_iter()
-        .map_init(
-            || vec![0.0f32; k],
-            |scratch, i| {
-                let p = pose(i);
-                volume
-                    .is_near(measured(p, scratch), threshold)
-                    .then_some((i as i64, p))
-            },
-        )
-        .flatten()
+        .filter_map(|i| {
+            let p = pose(i);
+            let near = match &affines {
+                Some(a) => volume.is_near_displaced(p, threshold, a),
+                None => volume.is_near(p, threshold),
+            };
+            near.then_some((i as i64, p))
+        })
         .collect();
     if near.is_empty() && n > 0 {
         let distance: Vec<f32> = (0..n)
             .into_par_iter()
-            .map_init(
-                || vec![0.0f32; k],
-                |scratch, i| volume.distance_at(measured(pose(i), scratch)),
-            )
+            .map(|i| volume.distance_at(measured(pose(i))))
             .collect();
         near = surviving_indices(&distance, threshold)
             .into_iter()

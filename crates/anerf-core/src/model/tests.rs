@@ -375,14 +375,38 @@ fn shifted_bones(
     given: &crate::geometry::BoneTransforms,
     shift: Vec3,
 ) -> crate::geometry::BoneTransforms {
+    moved_bones(given, |_| glam::Mat4::from_translation(shift))
+}
+
+/// Each of `given`'s bones followed by its own rigid motion `motion(k)` (pose space of the given fit).
+fn moved_bones(
+    given: &crate::geometry::BoneTransforms,
+    motion: impl Fn(usize) -> glam::Mat4,
+) -> crate::geometry::BoneTransforms {
     crate::geometry::BoneTransforms::from_matrices(
         given
             .matrices()
             .iter()
-            .map(|m| glam::Mat4::from_translation(shift) * *m)
+            .enumerate()
+            .map(|(k, m)| motion(k) * *m)
             .collect(),
     )
     .unwrap()
+}
+
+/// A refinement that moves every bone differently, as a fitter's per-joint errors do: bone `k` turned by
+/// `3°·(k + 1)` about its own axis through a point of the body and shifted by up to 4 cm.
+fn bones_moved_one_by_one(
+    given: &crate::geometry::BoneTransforms,
+) -> crate::geometry::BoneTransforms {
+    moved_bones(given, |k| {
+        let k = k as f32;
+        let pivot = Vec3::new(0.05 * k, 0.2 - 0.1 * k, 0.0);
+        let axis = Vec3::new(1.0, k, 0.5 - k).normalize();
+        glam::Mat4::from_translation(Vec3::new(0.01 * k, -0.02, 0.04 - 0.015 * k) + pivot)
+            * glam::Mat4::from_axis_angle(axis, (3.0 * (k + 1.0)).to_radians())
+            * glam::Mat4::from_translation(-pivot)
+    })
 }
 
 /// The GPU backends' culling on the device keeps the host culling's samples, in the same order, at the same
@@ -401,6 +425,8 @@ fn culling_on_the_device_keeps_the_host_cullings_samples() {
     };
     let moved = BoneMatrices::new(&shifted_bones(&s.bones, Vec3::new(0.12, 0.0, 0.0)), &device);
     let warp = CorrectionWarp::new(&s.frame.bones, &moved);
+    let one_by_one = BoneMatrices::new(&bones_moved_one_by_one(&s.bones), &device);
+    let bone_warp = CorrectionWarp::new(&s.frame.bones, &one_by_one);
     for (name, rays, turned_away, warp) in [
         ("the scene's rays", &s.rays, false, None),
         (
@@ -408,6 +434,12 @@ fn culling_on_the_device_keeps_the_host_cullings_samples() {
             &s.rays,
             false,
             Some(&warp),
+        ),
+        (
+            "the scene's rays, bones moved one by one",
+            &s.rays,
+            false,
+            Some(&bone_warp),
         ),
         ("rays turned away", &away, true, None),
     ] {
