@@ -137,12 +137,25 @@ pub struct SplatData {
 /// Longest header accepted: the layout's is a few hundred bytes for any degree anerf writes.
 const MAX_HEADER_BYTES: usize = 64 * 1024;
 
+/// A splat PLY read once: its bytes as they are on disk and the Gaussians they hold, so that a server can
+/// send exactly the bytes it checked.
+#[derive(Debug, Clone, PartialEq)]
+pub struct SplatFile {
+    pub bytes: Vec<u8>,
+    pub data: SplatData,
+}
+
 /// Reads a PLY in the layout [`write_splat_ply`] writes (degree 0 to 3), refusing with the file named:
 /// another format or property list, a header claiming more than `max_gaussians` Gaussians (checked before
 /// anything is allocated for them), a file shorter or longer than its header says (truncated), a value
 /// that is not finite, or a rotation of zero length. Scales are logarithms, so any finite value is a
 /// positive scale.
 pub fn read_splat_ply(path: &Path, max_gaussians: usize) -> Result<SplatData, EvalError> {
+    load_splat_ply(path, max_gaussians).map(|file| file.data)
+}
+
+/// [`read_splat_ply`], keeping the file's bytes; a file whose length changes while it is read is refused.
+pub fn load_splat_ply(path: &Path, max_gaussians: usize) -> Result<SplatFile, EvalError> {
     let bad = |detail: String| EvalError::Format {
         path: path.to_path_buf(),
         detail,
@@ -216,9 +229,15 @@ pub fn read_splat_ply(path: &Path, max_gaussians: usize) -> Result<SplatData, Ev
              or trailing data)"
         )));
     }
-    let mut body = head[at..].to_vec();
-    file.read_to_end(&mut body).map_err(io)?;
-    let values: Vec<f32> = body
+    let mut bytes = head;
+    file.read_to_end(&mut bytes).map_err(io)?;
+    if bytes.len() as u64 != length {
+        return Err(bad(format!(
+            "{} bytes read where it had {length}: the file changed while it was read",
+            bytes.len()
+        )));
+    }
+    let values: Vec<f32> = bytes[at..]
         .chunks_exact(4)
         .map(|c| f32::from_le_bytes(c.try_into().expect("4 bytes")))
         .collect();
@@ -256,7 +275,7 @@ pub fn read_splat_ply(path: &Path, max_gaussians: usize) -> Result<SplatData, Ev
         data.log_scales.push([tail[1], tail[2], tail[3]]);
         data.rotations.push(rotation);
     }
-    Ok(data)
+    Ok(SplatFile { bytes, data })
 }
 
 #[cfg(test)]
@@ -380,11 +399,15 @@ mod tests {
         (path, data)
     }
 
+    /// The Gaussians read back as written; loaded whole, the bytes kept are the file's.
     #[test]
     fn a_written_cloud_reads_back_with_its_count_and_attributes() {
         let dir = tempfile::tempdir().unwrap();
         let (path, data) = two_gaussians(dir.path());
         assert_eq!(read_splat_ply(&path, 2).unwrap(), data);
+        let file = load_splat_ply(&path, 2).unwrap();
+        assert_eq!(file.data, data);
+        assert_eq!(file.bytes, std::fs::read(&path).unwrap());
     }
 
     /// Truncated, over the limit, non-finite, a zero rotation, another format: refused naming the file.

@@ -140,17 +140,19 @@ fn run_file(run: &RunDir, rel: &str) -> Reply {
             )
         }
     };
-    // A splat file the page would parse is checked first, so that a truncated or corrupt one is refused
-    // with the reason instead of failing in the browser.
+    // A splat file the page would parse is read and checked whole, so that a truncated or corrupt one is
+    // refused with the reason instead of failing in the browser, and the bytes sent are the bytes checked.
     if file
         .extension()
         .is_some_and(|e| e.eq_ignore_ascii_case("ply"))
     {
-        if let Err(e) =
-            anerf_eval::splat_ply::read_splat_ply(&file, anerf_core::gaussians::MAX_GAUSSIANS)
-        {
-            return Reply::text(422, format!("{shown}: {e}"));
-        }
+        return match anerf_eval::splat_ply::load_splat_ply(
+            &file,
+            anerf_core::gaussians::MAX_GAUSSIANS,
+        ) {
+            Ok(ply) => Reply::new(200, content_type(&file), Body::Owned(ply.bytes)),
+            Err(e) => Reply::text(422, format!("{shown}: {e}")),
+        };
     }
     match std::fs::File::open(&file) {
         Ok(f) => Reply::new(200, content_type(&file), Body::File(f)),
