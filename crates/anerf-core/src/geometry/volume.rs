@@ -144,9 +144,15 @@ impl BlendWeightVolume {
 
     /// Adds the trilinear lookup at `p` of the first `out.len()` channels to `out` (zero on entry).
     fn accumulate(&self, p: Vec3, out: &mut [f32]) {
-        let n = out.len();
+        let c = self.channels();
+        self.blend_rows(p, out, |n| &self.data[n * c..(n + 1) * c]);
+    }
+
+    /// Adds to `out` (zero on entry) the trilinear blend at `p` of a per-node table, `row(n)` the values of
+    /// node `n` (flat index, [`Self::node_index`]; its first `out.len()` are read).
+    fn blend_rows<'a>(&self, p: Vec3, out: &mut [f32], row: impl Fn(usize) -> &'a [f32]) {
         for (idx, w) in self.corners(p) {
-            for (o, v) in out.iter_mut().zip(&self.node(idx[0], idx[1], idx[2])[..n]) {
+            for (o, v) in out.iter_mut().zip(row(self.node_index(idx))) {
                 *o += w * v;
             }
         }
@@ -345,14 +351,22 @@ impl HostVolume {
     /// threshold. The margin covers the rounding of the interpolation weights (which sum to 1 within a few ulp).
     fn is_near(&self, p: Vec3, threshold: f32) -> bool {
         let (base, frac) = self.volume.cell(p);
-        let [lo, hi] = self.cell_distances[self.volume.cell_index(base)];
         let margin = 1e-5 * threshold.abs() + 1e-7;
-        if lo >= threshold + margin {
-            false
-        } else if hi < threshold - margin {
-            true
+        self.settled_by_cell(base, threshold, margin)
+            .unwrap_or_else(|| self.volume.distance_in_cell(base, frac) < threshold)
+    }
+
+    /// `distance < threshold` for every point of the cell at `base`, and for every point whose distance
+    /// differs from one of the cell's by at most `slack`, where the cell's corner distances all lie beyond
+    /// the threshold by more than `slack` on the same side; `None` where they do not.
+    fn settled_by_cell(&self, base: [usize; 3], threshold: f32, slack: f32) -> Option<bool> {
+        let [lo, hi] = self.cell_distances[self.volume.cell_index(base)];
+        if lo >= threshold + slack {
+            Some(false)
+        } else if hi < threshold - slack {
+            Some(true)
         } else {
-            self.volume.distance_in_cell(base, frac) < threshold
+            None
         }
     }
 }
@@ -439,13 +453,10 @@ impl VolumeTensor {
     /// The blended field `δ(p)` at a point of the volume's frame (metres): the trilinear blend of the nodes'
     /// maps applied to `p`.
     pub fn displacement(&self, affines: &BlendedAffines, p: Vec3) -> Vec3 {
-        let v = &self.host.volume;
         let mut m = [0.0f32; 12];
-        for (idx, w) in v.corners(p) {
-            for (a, b) in m.iter_mut().zip(&affines.nodes[v.node_index(idx)]) {
-                *a += w * b;
-            }
-        }
+        self.host
+            .volume
+            .blend_rows(p, &mut m, |n| &affines.nodes[n][..]);
         transform_point(&m, p)
     }
 
@@ -472,12 +483,8 @@ impl VolumeTensor {
             })
             .sum();
         let slack = host.lipschitz * reach * (1.0 + 1e-4) + 1e-5;
-        let [lo, hi] = host.cell_distances[v.cell_index(base)];
-        if lo >= threshold + slack {
-            return false;
-        }
-        if hi < threshold - slack {
-            return true;
+        if let Some(near) = host.settled_by_cell(base, threshold, slack) {
+            return near;
         }
         let d = v.distance_in_cell(base, frac);
         if d >= threshold + slack {
