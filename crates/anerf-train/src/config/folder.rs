@@ -29,8 +29,8 @@ struct FolderTrain {
 }
 
 /// Training frames a stage-1 step draws where the fits are refined: each frame's correction then moves
-/// on four times as many steps, which wins 1–1.5 dB on held-out views of fits off by 4 cm (at two to three
-/// times stage 1's time today); with exact fits it wins nothing, so other folders keep one
+/// on four times as many steps, which wins 1–1.5 dB on held-out views of fits off by 4 cm (for a fifth to a
+/// quarter more of stage 1's time than one frame); with exact fits it wins nothing, so other folders keep one
 /// (docs/POSE-REFINEMENT.md, "Several frames a step").
 pub const REFINED_FRAMES_PER_STEP: usize = 4;
 
