@@ -3,10 +3,9 @@
 //! repeated calls on 65,536 (or `POINTS`) points drawn uniformly in a 1 m cube around the origin (metres), the
 //! `anerf bench` step workload's points, with a random table and output gradient.
 
-use std::time::Instant;
-
 use anerf_core::kernels::hash_grid::cpu;
 use anerf_core::model::config::{ModelPreset, PointEncoding};
+use anerf_testing::report_ms;
 
 /// Timed calls per kernel, after one untimed call.
 const REPEATS: usize = 15;
@@ -48,15 +47,17 @@ fn main() {
         spec.features,
         rayon::current_num_threads()
     );
-    report("encode", || cpu::encode(&points, &table, &spec, &mut out));
-    report("table gradient", || {
+    report_ms("encode", REPEATS, || {
+        cpu::encode(&points, &table, &spec, &mut out)
+    });
+    report_ms("table gradient", REPEATS, || {
         grad_table.fill(0.0);
         cpu::table_grad(&points, &grad, &spec, &mut grad_table)
     });
-    report("point gradient", || {
+    report_ms("point gradient", REPEATS, || {
         cpu::points_grad(&points, &table, &grad, &spec, &mut grad_points)
     });
-    report("both gradients", || {
+    report_ms("both gradients", REPEATS, || {
         grad_table.fill(0.0);
         cpu::grads(
             &points,
@@ -67,23 +68,4 @@ fn main() {
             &mut grad_points,
         )
     });
-}
-
-/// Times `REPEATS` calls of `kernel` after one untimed call and prints the median and range in ms.
-fn report(name: &str, mut kernel: impl FnMut()) {
-    kernel();
-    let mut ms: Vec<f64> = (0..REPEATS)
-        .map(|_| {
-            let started = Instant::now();
-            kernel();
-            started.elapsed().as_secs_f64() * 1e3
-        })
-        .collect();
-    ms.sort_by(f64::total_cmp);
-    println!(
-        "{name:>16}: median {:6.2} ms  (min {:.2}, max {:.2})",
-        ms[REPEATS / 2],
-        ms[0],
-        ms[REPEATS - 1]
-    );
 }

@@ -10,6 +10,7 @@ use glam::Vec2;
 use image::{GrayImage, Rgb32FImage};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
+use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 use thiserror::Error;
 
@@ -144,11 +145,6 @@ pub struct RaySampler {
     rng: ChaCha8Rng,
 }
 
-/// Pixel classes of one training image.
-const BACKGROUND: u8 = 0;
-const BODY: u8 = 1;
-const EDGE: u8 = 100;
-
 impl RaySampler {
     pub fn new(seed: u64, options: SamplerOptions) -> Self {
         Self {
@@ -182,13 +178,7 @@ impl RaySampler {
     /// Exactly `n` rays of one image, with target colours (background and outside-box pixels black) and
     /// pixel coordinates.
     pub fn sample(&mut self, view: &ImageView, n: usize) -> Result<HostRays, SamplerError> {
-        let (w, _) = check_sizes(view)?;
-        let bound = box_mask(view.camera, view.bounds);
-        let mut classes: Vec<u8> = view
-            .mask
-            .pixels()
-            .map(|p| if p[0] != 0 { BODY } else { BACKGROUND })
-            .collect();
+        check_sizes(view)?;
         let computed;
         let band = match view.edge {
             Some(band) => band,
@@ -197,27 +187,22 @@ impl RaySampler {
                 &computed
             }
         };
-        if self.options.mask_edges == MaskEdges::Skip {
-            for (c, &edge) in classes.iter_mut().zip(band) {
-                if edge {
-                    *c = EDGE;
-                }
-            }
-        }
-        // msk = msk · bound_mask; bound_mask[msk == 100] = 0 (the reference's order).
-        let body: Vec<u32> = (0..classes.len())
-            .filter(|&i| bound[i] && classes[i] == BODY)
-            .map(|i| i as u32)
-            .collect();
-        let boxed: Vec<u32> = (0..classes.len())
-            .filter(|&i| bound[i] && classes[i] != EDGE)
-            .map(|i| i as u32)
-            .collect();
-        if boxed.is_empty() {
-            return Err(SamplerError::EmptyBox);
-        }
+        let pools = Pools::new(view, band, self.options.mask_edges)?;
+        self.draw(view, band, &pools, n)
+    }
+
+    /// `n` rays drawn from `pools` of `view`: the random part of [`Self::sample`].
+    fn draw(
+        &mut self,
+        view: &ImageView,
+        band: &[bool],
+        pools: &Pools,
+        n: usize,
+    ) -> Result<HostRays, SamplerError> {
+        let w = view.camera.width;
+        let on_body: &[u8] = view.mask.as_raw();
         let gt = |i: usize| -> [f32; 3] {
-            if bound[i] && classes[i] != BACKGROUND {
+            if on_body[i] != 0 {
                 view.image.as_raw()[3 * i..3 * i + 3]
                     .try_into()
                     .expect("3 channels")
@@ -232,14 +217,18 @@ impl RaySampler {
             if left == 0 {
                 return Ok(out);
             }
-            let n_body = if body.is_empty() {
+            let n_body = if pools.body.is_empty() {
                 0
             } else {
                 (left as f32 * self.options.body_fraction) as usize
             };
             let picks: Vec<u32> = (0..left)
                 .map(|k| {
-                    let pool = if k < n_body { &body } else { &boxed };
+                    let pool = if k < n_body {
+                        &pools.body
+                    } else {
+                        &pools.boxed
+                    };
                     pool[self.rng.random_range(0..pool.len())]
                 })
                 .collect();
@@ -251,7 +240,7 @@ impl RaySampler {
                 if let Some(hit) = hit_box.intersect(&ray) {
                     let i = i as usize;
                     push_ray(&mut out, &ray, hit.near, hit.far, gt(i), [u, v]);
-                    out.foreground.push(bound[i] && classes[i] == BODY);
+                    out.foreground.push(on_body[i] != 0);
                     out.edge.push(band[i]);
                 }
             }
@@ -287,22 +276,23 @@ impl RaySampler {
     }
 
     /// Draws one step's `options.rays` rays from `images` ([`Self::pick_step`]): split over the frames as
-    /// evenly as whole rays allow (the first take the remainder), each frame's share drawn by
-    /// [`Self::sample_prepared`].
+    /// evenly as whole rays allow (the first take the remainder), each frame's share over its views as
+    /// [`Self::sample_prepared`] splits it.
     pub fn sample_step(
         &mut self,
         subject: &PreparedSubject,
         images: &[StepImages],
     ) -> Result<Vec<HostRays>, SamplerError> {
         let total = self.options.rays;
-        images
+        let shares: Vec<(FrameId, &[ViewId], usize)> = images
             .iter()
             .enumerate()
             .map(|(k, step)| {
                 let n = total / images.len() + usize::from(k < total % images.len());
-                self.sample_prepared(subject, step.frame, &step.views, n)
+                (step.frame, step.views.as_slice(), n)
             })
-            .collect()
+            .collect();
+        self.sample_frames(subject, &shares)
     }
 
     /// Reads `views` of one frame of a prepared subject and draws `rays` rays from them, split as evenly
@@ -314,28 +304,132 @@ impl RaySampler {
         views: &[ViewId],
         rays: usize,
     ) -> Result<HostRays, SamplerError> {
-        let bounds = subject
-            .frame(frame)
-            .ok_or_else(|| DataError::invalid(&subject.dir, format!("{frame} was not prepared")))?
-            .bounds;
-        let mut out = HostRays::default();
-        for (k, &view) in views.iter().enumerate() {
-            let n = rays / views.len() + usize::from(k < rays % views.len());
-            let image = subject.image(frame, view)?;
-            let (mask, edge) = subject.mask_and_edge(frame, view)?;
-            let rays = self.sample(
-                &ImageView {
-                    camera: &subject.cameras[view.0],
-                    bounds: &bounds,
-                    image: &image,
-                    mask: &mask,
-                    edge: Some(&edge),
-                },
-                n,
-            )?;
-            out.append(rays);
+        let mut rays = self.sample_frames(subject, &[(frame, views, rays)])?;
+        Ok(rays.pop().expect("one frame"))
+    }
+
+    /// `(frame, views, rays)` shares drawn as [`Self::sample_prepared`] draws each: the images are read and
+    /// their pools found in parallel (nothing random happens there), then the rays are drawn image after
+    /// image in order, so the stream is the one a sequential loop draws.
+    fn sample_frames(
+        &mut self,
+        subject: &PreparedSubject,
+        shares: &[(FrameId, &[ViewId], usize)],
+    ) -> Result<Vec<HostRays>, SamplerError> {
+        let mut jobs = Vec::new();
+        for &(frame, views, rays) in shares {
+            let bounds = subject
+                .frame(frame)
+                .ok_or_else(|| {
+                    DataError::invalid(&subject.dir, format!("{frame} was not prepared"))
+                })?
+                .bounds;
+            for (k, &view) in views.iter().enumerate() {
+                let n = rays / views.len() + usize::from(k < rays % views.len());
+                jobs.push((frame, view, bounds, n));
+            }
         }
-        Ok(out)
+        let mask_edges = self.options.mask_edges;
+        let read: Vec<ReadImage> = jobs
+            .par_iter()
+            .map(|&(frame, view, bounds, _)| {
+                ReadImage::new(subject, frame, view, bounds, mask_edges)
+            })
+            .collect::<Result<_, _>>()?;
+        let mut drawn = read
+            .iter()
+            .zip(&jobs)
+            .map(|(image, job)| self.draw(&image.view(subject), &image.edge, &image.pools, job.3));
+        shares
+            .iter()
+            .map(|(_, views, _)| {
+                let mut out = HostRays::default();
+                for _ in 0..views.len() {
+                    out.append(drawn.next().expect("a job per view")?);
+                }
+                Ok(out)
+            })
+            .collect()
+    }
+}
+
+/// The pixels of one image that rays are drawn from, in pixel order: the box's projection less a skipped
+/// mask-edge band (`boxed`), and those of them on the body (`body`) — the reference's
+/// `msk = msk · bound_mask; bound_mask[msk == 100] = 0`.
+struct Pools {
+    body: Vec<u32>,
+    boxed: Vec<u32>,
+}
+
+impl Pools {
+    fn new(view: &ImageView, band: &[bool], mask_edges: MaskEdges) -> Result<Self, SamplerError> {
+        let bound = box_mask(view.camera, view.bounds);
+        let skip = mask_edges == MaskEdges::Skip;
+        let on_body: &[u8] = view.mask.as_raw();
+        let (mut body, mut boxed) = (Vec::new(), Vec::new());
+        for (i, (&inside, &edge)) in bound.iter().zip(band).enumerate() {
+            if inside && !(skip && edge) {
+                boxed.push(i as u32);
+                if on_body[i] != 0 {
+                    body.push(i as u32);
+                }
+            }
+        }
+        if boxed.is_empty() {
+            return Err(SamplerError::EmptyBox);
+        }
+        Ok(Self { body, boxed })
+    }
+}
+
+/// A training image of a prepared subject, read and with its [`Pools`] found.
+struct ReadImage {
+    view: ViewId,
+    bounds: Aabb,
+    image: Rgb32FImage,
+    mask: GrayImage,
+    edge: Vec<bool>,
+    pools: Pools,
+}
+
+impl ReadImage {
+    fn new(
+        subject: &PreparedSubject,
+        frame: FrameId,
+        view: ViewId,
+        bounds: Aabb,
+        mask_edges: MaskEdges,
+    ) -> Result<Self, SamplerError> {
+        let image = subject.image(frame, view)?;
+        let (mask, edge) = subject.mask_and_edge(frame, view)?;
+        let camera = &subject.cameras[view.0];
+        let view_of = ImageView {
+            camera,
+            bounds: &bounds,
+            image: &image,
+            mask: &mask,
+            edge: Some(&edge),
+        };
+        check_sizes(&view_of)?;
+        let pools = Pools::new(&view_of, &edge, mask_edges)?;
+        Ok(Self {
+            view,
+            bounds,
+            image,
+            mask,
+            edge,
+            pools,
+        })
+    }
+
+    fn view<'a>(&'a self, subject: &'a PreparedSubject) -> ImageView<'a> {
+        ImageView {
+            camera: &subject.cameras[self.view.0],
+            bounds: &self.bounds,
+            image: &self.image,
+            mask: &self.mask,
+            edge: Some(&self.edge),
+        }
     }
 }
 
@@ -426,17 +520,62 @@ pub fn box_mask(camera: &Camera, bounds: &Aabb) -> Vec<bool> {
                 }
             }
         }
-        let lo = quad.iter().fold(Vec2::splat(f32::MAX), |a, p| a.min(*p));
-        let hi = quad.iter().fold(Vec2::splat(f32::MIN), |a, p| a.max(*p));
-        for y in (lo.y.max(0.0) as i64)..=(hi.y.min((h - 1) as f32) as i64) {
-            for x in (lo.x.max(0.0) as i64)..=(hi.x.min((w - 1) as f32) as i64) {
-                if inside_convex(&quad, Vec2::new(x as f32, y as f32)) {
+        fill_quad(&mut mask, w, h, &quad);
+    }
+    mask
+}
+
+/// Marks the pixels `(x, y)` of a `w × h` row-major mask at which [`inside_convex`] holds for `quad`
+/// (corners at whole pixels), a row at a time: the test's half-planes cut each row to one span, found in
+/// exact integer arithmetic, so a row costs four divisions instead of a test per pixel. A quad of zero
+/// area (a face seen edge-on) is tested pixel by pixel.
+fn fill_quad(mask: &mut [bool], w: i64, h: i64, quad: &[Vec2]) {
+    let lo = quad.iter().fold(Vec2::splat(f32::MAX), |a, p| a.min(*p));
+    let hi = quad.iter().fold(Vec2::splat(f32::MIN), |a, p| a.max(*p));
+    let (x0, x1) = (lo.x.max(0.0) as i64, hi.x.min((w - 1) as f32) as i64);
+    let rows = (lo.y.max(0.0) as i64)..=(hi.y.min((h - 1) as f32) as i64);
+    // Corners beyond ±2⁴⁰ pixels (a box corner at the camera's plane) are pulled in, which keeps every
+    // product below in range.
+    let whole = |v: f32| i128::from((v as i64).clamp(-(1 << 40), 1 << 40));
+    let corners: Vec<[i128; 2]> = quad.iter().map(|p| [whole(p.x), whole(p.y)]).collect();
+    let edges: Vec<([i128; 2], [i128; 2])> = (0..corners.len())
+        .map(|k| {
+            let (a, b) = (corners[k], corners[(k + 1) % corners.len()]);
+            (a, [b[0] - a[0], b[1] - a[1]])
+        })
+        .collect();
+    // Twice the signed area. Every test `d × (p − a)` is an integer and they sum to it, so where it is not
+    // zero `inside_convex` holds exactly where each one has the area's sign (or is zero).
+    let area: i128 = edges.iter().map(|(a, d)| a[0] * d[1] - a[1] * d[0]).sum();
+    if area == 0 {
+        for y in rows {
+            for x in x0..=x1 {
+                if inside_convex(quad, Vec2::new(x as f32, y as f32)) {
                     mask[(y * w + x) as usize] = true;
                 }
             }
         }
+        return;
     }
-    mask
+    let sign = area.signum();
+    for y in rows {
+        // Edge `a → a + d` keeps `sign · (d.x (y − a.y) − d.y (x − a.x)) ≥ 0`, i.e. `f − e·x ≥ 0`.
+        let (mut from, mut to) = (i128::from(x0), i128::from(x1));
+        for &(a, d) in &edges {
+            let e = sign * d[1];
+            let f = sign * (d[0] * (i128::from(y) - a[1]) + d[1] * a[0]);
+            match e.signum() {
+                0 if f < 0 => to = from - 1,
+                0 => {}
+                1 => to = to.min(f.div_euclid(e)),
+                _ => from = from.max(-(f.div_euclid(-e))),
+            }
+        }
+        if from <= to {
+            let row = (y * w) as usize;
+            mask[row + from as usize..=row + to as usize].fill(true);
+        }
+    }
 }
 
 /// Inside or on the boundary of a convex polygon of either orientation.
@@ -514,4 +653,55 @@ pub fn image_rays(
         height: h,
         ground_truth,
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The span fill marks exactly the pixels the per-pixel test accepts, for quads of every kind the
+    /// rounding of a projected face can give: convex either way round, partly or wholly off the image,
+    /// self-intersecting, collinear or a single point.
+    #[test]
+    fn the_span_fill_equals_the_per_pixel_test() {
+        let (w, h) = (37i64, 29i64);
+        let mut rng = ChaCha8Rng::seed_from_u64(5);
+        let mut corner = |spread: i32| {
+            Vec2::new(
+                rng.random_range(-spread..w as i32 + spread) as f32,
+                rng.random_range(-spread..h as i32 + spread) as f32,
+            )
+        };
+        let mut quads: Vec<Vec<Vec2>> = (0..3000)
+            .map(|k| (0..4).map(|_| corner(k % 40)).collect())
+            .collect();
+        for k in 0..200 {
+            // Collinear corners (a face seen edge-on) and repeated ones.
+            let (a, b) = (corner(10), corner(10));
+            let t = [0.0, 0.5, 1.0, 2.0].map(|t| (a + (b - a) * t).round());
+            quads.push(if k % 2 == 0 {
+                t.to_vec()
+            } else {
+                vec![a, a, a, a]
+            });
+        }
+        let mut filled = 0;
+        for quad in &quads {
+            let mut spans = vec![false; (w * h) as usize];
+            fill_quad(&mut spans, w, h, quad);
+            // The earlier fill: the test at every pixel of the quad's bounding box.
+            let lo = quad.iter().fold(Vec2::splat(f32::MAX), |a, p| a.min(*p));
+            let hi = quad.iter().fold(Vec2::splat(f32::MIN), |a, p| a.max(*p));
+            let pixels: Vec<bool> = (0..w * h)
+                .map(|i| {
+                    let p = Vec2::new((i % w) as f32, (i / w) as f32);
+                    p.cmpge(lo).all() && p.cmple(hi).all() && inside_convex(quad, p)
+                })
+                .collect();
+            let differ = spans.iter().zip(&pixels).filter(|(a, b)| a != b).count();
+            assert_eq!(differ, 0, "{differ} pixels differ for quad {quad:?}");
+            filled += usize::from(pixels.iter().any(|&p| p));
+        }
+        assert!(filled > 1000, "only {filled} quads cover a pixel");
+    }
 }

@@ -1,0 +1,25 @@
+//! The benches' one timing rule (`cargo bench` targets with `harness = false`): a call untimed to warm
+//! caches, then repeated timed calls, reported as median and range.
+
+use std::time::Instant;
+
+/// Runs `f` once untimed and `repeats` times timed (at least once); prints `label`, the median and the
+/// range in milliseconds, and returns the median.
+pub fn report_ms(label: &str, repeats: usize, mut f: impl FnMut()) -> f64 {
+    f();
+    let mut ms: Vec<f64> = (0..repeats.max(1))
+        .map(|_| {
+            let started = Instant::now();
+            f();
+            started.elapsed().as_secs_f64() * 1e3
+        })
+        .collect();
+    ms.sort_by(f64::total_cmp);
+    let median = ms[ms.len() / 2];
+    println!(
+        "{label:<36} median {median:8.2} ms  (min {:.2}, max {:.2})",
+        ms[0],
+        ms[ms.len() - 1]
+    );
+    median
+}
