@@ -7,8 +7,8 @@ use anerf_data::prepare::edge_band;
 use anerf_data::prepare::{FrameSelection, ImageScale};
 use anerf_data::sampler::box_mask;
 use anerf_data::{
-    image_rays, load_zju_mocap, prepare, LoadOptions, MaskEdges, PrepareOptions, PreparedSubject,
-    RaySampler, SamplerOptions, StepImages,
+    draw_step, image_rays, load_zju_mocap, prepare, LoadOptions, MaskEdges, Prefetch,
+    PrepareOptions, PreparedSubject, RaySampler, SamplerOptions, StepImages, StepPlan,
 };
 use anerf_testing::fixture;
 use image::GrayImage;
@@ -331,4 +331,49 @@ fn several_frames_a_step_draw_distinct_frames_and_split_the_rays_evenly() {
     assert_eq!(all.len(), 2, "at most the subject's frames");
     assert!(one.pick_step(&frames, &views, 0, 1).is_none());
     assert!(one.pick_step(&[], &views, 1, 1).is_none());
+}
+
+/// Drawing ahead changes nothing: the steps a [`Prefetch`] returns are the ones `draw_step` draws from
+/// each state in turn, also after the caller's sampler jumps to another state (a resume), and a plan that
+/// cannot be drawn is an error.
+#[test]
+fn prefetched_steps_are_the_sequential_draws() {
+    let dir = tempfile::tempdir().unwrap();
+    let p = std::sync::Arc::new(prepared(dir.path()));
+    let plan = StepPlan {
+        frames: vec![FrameId(0), FrameId(1)],
+        views: p.views.clone(),
+        frames_per_step: 2,
+        views_per_step: 2,
+    };
+    let options = SamplerOptions {
+        rays: 64,
+        ..SamplerOptions::default()
+    };
+    let mut prefetch = Prefetch::new(p.clone(), plan.clone());
+    let (mut sampler, mut sequential) = (
+        RaySampler::new(3, options.clone()),
+        RaySampler::new(3, options.clone()),
+    );
+    for step in 0..6 {
+        if step == 3 {
+            // Jump elsewhere: the draw started from the old state must not be used.
+            sampler = RaySampler::new(8, options.clone());
+            sequential = sampler.clone();
+        }
+        let ahead = prefetch.next(&sampler).unwrap();
+        let direct = draw_step(&p, sequential.clone(), &plan).unwrap();
+        assert_eq!(ahead.images, direct.images, "step {step}");
+        assert_eq!(ahead.rays, direct.rays, "step {step}");
+        assert_eq!(ahead.sampler, direct.sampler, "step {step}");
+        (sampler, sequential) = (ahead.sampler, direct.sampler);
+    }
+    let impossible = StepPlan {
+        views_per_step: p.views.len() + 1,
+        ..plan
+    };
+    let err = Prefetch::new(p.clone(), impossible)
+        .next(&sampler)
+        .unwrap_err();
+    assert!(err.to_string().contains("no step can be drawn"), "{err}");
 }

@@ -2,12 +2,13 @@
 //! the training views.
 
 use std::sync::atomic::AtomicBool;
+use std::sync::Arc;
 
 use anerf_core::model::{AnimatableNerf, FrameCode, FrameInputs};
 use anerf_core::render::{psnr_from_mse, HostRays, RayBatch};
 use anerf_core::tensor::{from_rows, to_host};
 use anerf_core::FrameId;
-use anerf_data::{RaySampler, SamplerOptions};
+use anerf_data::{Prefetch, RaySampler, SamplerOptions, StepPlan};
 use anerf_eval::images::{write_png, PngDepth};
 use anerf_eval::ImageMetrics;
 use anyhow::{bail, Context, Result};
@@ -49,12 +50,8 @@ pub fn train_stage1(
         (model, optimizer(cfg.grad_clip), state)
     };
     let devices = exp.data_parallel().map(<[Device]>::to_vec);
-    let mut step = Stage1 {
-        record: Record::open(run, Stage::Train, state.counters.step)?,
-        exp,
-        cfg: &cfg,
-        state,
-    };
+    let record = Record::open(run, Stage::Train, state.counters.step)?;
+    let mut step = Stage1::new(exp, &cfg, state, record);
     let (model, outcome) = match devices {
         None => drive(&mut step, Single::new(model, optim), &cfg, options, stop)?,
         Some(devices) => {
@@ -176,6 +173,31 @@ struct Stage1<'a> {
     cfg: &'a StageConfig,
     state: TrainerState,
     record: Record<'a>,
+    /// Draws each step's rays while the step before computes.
+    prefetch: Prefetch,
+}
+
+impl<'a> Stage1<'a> {
+    fn new(
+        exp: &'a mut Experiment,
+        cfg: &'a StageConfig,
+        state: TrainerState,
+        record: Record<'a>,
+    ) -> Self {
+        let plan = StepPlan {
+            frames: exp.train_frames.clone(),
+            views: exp.train_views.clone(),
+            frames_per_step: cfg.frames_per_step,
+            views_per_step: cfg.views_per_step.min(exp.train_views.len()),
+        };
+        Self {
+            prefetch: Prefetch::new(Arc::new(exp.prepared.clone()), plan),
+            exp,
+            cfg,
+            state,
+            record,
+        }
+    }
 }
 
 impl Step for Stage1<'_> {
@@ -280,20 +302,9 @@ impl ShardedStep for Stage1<'_> {
             .sampler
             .as_mut()
             .expect("stage 1 keeps a sampler");
-        let views = self.cfg.views_per_step.min(exp.train_views.len());
-        let images = sampler
-            .pick_step(
-                &exp.train_frames,
-                &exp.train_views,
-                self.cfg.frames_per_step,
-                views,
-            )
-            .expect(
-                "frames and views exist, and frames_per_step and views_per_step are at least 1",
-            );
-        let rays = sampler
-            .sample_step(&exp.prepared, &images)
-            .with_context(|| format!("sampling rays of {images:?}"))?;
+        let drawn = self.prefetch.next(sampler)?;
+        *sampler = drawn.sampler;
+        let (images, rays) = (drawn.images, drawn.rays);
         let samples = exp.config.model.samples_per_ray;
         // Before the refinement's start the frames render with their given fits (and their corrections
         // get no gradient and no penalty).
@@ -506,13 +517,8 @@ mod tests {
         run: &'a RunDir,
     ) -> (AnimatableNerf, Stage1<'a>) {
         let (model, state) = fresh_start(exp, cfg);
-        let step = Stage1 {
-            record: Record::open(run, Stage::Train, 0).unwrap(),
-            exp,
-            cfg,
-            state,
-        };
-        (model, step)
+        let record = Record::open(run, Stage::Train, 0).unwrap();
+        (model, Stage1::new(exp, cfg, state, record))
     }
 
     /// Each of `count` shards' logged values and parameter gradients for `batch`.

@@ -17,6 +17,10 @@ use thiserror::Error;
 use crate::error::DataError;
 use crate::prepare::{edge_band, PreparedSubject};
 
+mod prefetch;
+
+pub use prefetch::{draw_step, DrawError, DrawnStep, Prefetch, StepPlan};
+
 /// What training draws from the band `dilate(mask) − erode(mask)` of a 5×5 kernel around the mask's edge
 /// (the reference's `erode_edge`), marked on the full-resolution mask by `prepare` ([`ImageView::edge`]):
 /// the pixels a real capture's mask is most often wrong about.
