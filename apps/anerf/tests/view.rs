@@ -8,6 +8,7 @@ use std::path::Path;
 use std::process::{Command, Stdio};
 use std::sync::atomic::{AtomicBool, Ordering};
 
+use anerf_core::gaussians::Splats;
 use anerf_eval::splat_ply::{write_splat_ply, SplatCloud};
 use anerf_view::Viewer;
 
@@ -466,11 +467,13 @@ fn the_view_command_prints_its_address_and_serves_until_stopped() {
 /// One Gaussian, for a splat file the server accepts.
 fn one_gaussian() -> SplatCloud<'static> {
     SplatCloud {
-        means: &[[0.0, 1.0, 0.0]],
-        log_scales: &[[-4.0; 3]],
-        rotations: &[[1.0, 0.0, 0.0, 0.0]],
-        opacity_logits: &[1.0],
-        colours: &[0.5; 3],
+        splats: Splats {
+            means: &[[0.0, 1.0, 0.0]],
+            log_scales: &[[-4.0; 3]],
+            rotations: &[[1.0, 0.0, 0.0, 0.0]],
+            opacity_logits: &[1.0],
+            colours: &[0.5; 3],
+        },
         sh_degree: 0,
     }
 }

@@ -8,19 +8,16 @@
 use std::io::Read;
 use std::path::Path;
 
+use anerf_core::gaussians::Splats;
 use anerf_data::atomic::write_with;
 
 use crate::error::EvalError;
 
-/// The Gaussians to write, one entry per Gaussian; `colours` holds `3·(d+1)²` harmonic coefficients per
-/// Gaussian, coefficient-major (`k₀ r g b, k₁ r g b, …`).
+/// The Gaussians to write and the degree of their harmonics: `splats.colours` holds `3·(d+1)²` coefficients
+/// per Gaussian, coefficient-major (`k₀ r g b, k₁ r g b, …`).
 #[derive(Debug, Clone, Copy)]
 pub struct SplatCloud<'a> {
-    pub means: &'a [[f32; 3]],
-    pub log_scales: &'a [[f32; 3]],
-    pub rotations: &'a [[f32; 4]],
-    pub opacity_logits: &'a [f32],
-    pub colours: &'a [f32],
+    pub splats: Splats<'a>,
     pub sh_degree: usize,
 }
 
@@ -31,37 +28,38 @@ impl SplatCloud<'_> {
     }
 
     fn validate(&self) -> Result<(), EvalError> {
-        let n = self.means.len();
+        let n = self.splats.means.len();
         let invalid = |detail: String| EvalError::InvalidInput {
             what: "Gaussian cloud",
             detail,
         };
         if [
-            self.log_scales.len(),
-            self.rotations.len(),
-            self.opacity_logits.len(),
+            self.splats.log_scales.len(),
+            self.splats.rotations.len(),
+            self.splats.opacity_logits.len(),
         ] != [n; 3]
-            || self.colours.len() != n * 3 * self.coefficients()
+            || self.splats.colours.len() != n * 3 * self.coefficients()
         {
             return Err(invalid(format!(
                 "{n} means but {} scales, {} rotations, {} opacities, {} colour values (expected {} per \
                  Gaussian for degree {})",
-                self.log_scales.len(),
-                self.rotations.len(),
-                self.opacity_logits.len(),
-                self.colours.len(),
+                self.splats.log_scales.len(),
+                self.splats.rotations.len(),
+                self.splats.opacity_logits.len(),
+                self.splats.colours.len(),
                 3 * self.coefficients(),
                 self.sh_degree
             )));
         }
         let all = self
+            .splats
             .means
             .iter()
-            .chain(self.log_scales)
+            .chain(self.splats.log_scales)
             .flatten()
-            .chain(self.rotations.iter().flatten())
-            .chain(self.opacity_logits)
-            .chain(self.colours);
+            .chain(self.splats.rotations.iter().flatten())
+            .chain(self.splats.opacity_logits)
+            .chain(self.splats.colours);
         if all.clone().any(|v| !v.is_finite()) {
             return Err(invalid("a value is not finite".into()));
         }
@@ -90,7 +88,7 @@ pub fn write_splat_ply(path: &Path, cloud: &SplatCloud) -> Result<(), EvalError>
     let names = property_names(cloud.sh_degree);
     let mut header = format!(
         "ply\nformat binary_little_endian 1.0\ncomment written by anerf\nelement vertex {}\n",
-        cloud.means.len()
+        cloud.splats.means.len()
     );
     for name in &names {
         header += &format!("property float {name}\n");
@@ -98,18 +96,18 @@ pub fn write_splat_ply(path: &Path, cloud: &SplatCloud) -> Result<(), EvalError>
     header += "end_header\n";
     let k = cloud.coefficients();
     let mut bytes = header.into_bytes();
-    bytes.reserve(cloud.means.len() * names.len() * 4);
-    for i in 0..cloud.means.len() {
-        let coefficients = &cloud.colours[i * 3 * k..(i + 1) * 3 * k];
-        let mut row: Vec<f32> = cloud.means[i].to_vec();
+    bytes.reserve(cloud.splats.means.len() * names.len() * 4);
+    for i in 0..cloud.splats.means.len() {
+        let coefficients = &cloud.splats.colours[i * 3 * k..(i + 1) * 3 * k];
+        let mut row: Vec<f32> = cloud.splats.means[i].to_vec();
         row.extend([0.0; 3]);
         row.extend(&coefficients[..3]);
         for channel in 0..3 {
             row.extend((1..k).map(|c| coefficients[3 * c + channel]));
         }
-        row.push(cloud.opacity_logits[i]);
-        row.extend(cloud.log_scales[i]);
-        row.extend(cloud.rotations[i]);
+        row.push(cloud.splats.opacity_logits[i]);
+        row.extend(cloud.splats.log_scales[i]);
+        row.extend(cloud.splats.rotations[i]);
         for v in row {
             bytes.extend_from_slice(&v.to_le_bytes());
         }
@@ -132,6 +130,22 @@ pub struct SplatData {
     /// `3·(d+1)²` coefficients per Gaussian, coefficient-major.
     pub colours: Vec<f32>,
     pub sh_degree: usize,
+}
+
+impl SplatData {
+    /// The Gaussians as [`write_splat_ply`] takes them.
+    pub fn cloud(&self) -> SplatCloud<'_> {
+        SplatCloud {
+            splats: Splats {
+                means: &self.means,
+                log_scales: &self.log_scales,
+                rotations: &self.rotations,
+                opacity_logits: &self.opacity_logits,
+                colours: &self.colours,
+            },
+            sh_degree: self.sh_degree,
+        }
+    }
 }
 
 /// Longest header accepted: the layout's is a few hundred bytes for any degree anerf writes.
@@ -321,11 +335,13 @@ mod tests {
             })
             .collect();
         let cloud = SplatCloud {
-            means: &means,
-            log_scales: &log_scales,
-            rotations: &rotations,
-            opacity_logits: &opacity_logits,
-            colours: &colours,
+            splats: Splats {
+                means: &means,
+                log_scales: &log_scales,
+                rotations: &rotations,
+                opacity_logits: &opacity_logits,
+                colours: &colours,
+            },
             sh_degree: 1,
         };
         write_splat_ply(&path, &cloud).unwrap();
@@ -367,7 +383,10 @@ mod tests {
             );
         }
         let short = SplatCloud {
-            opacity_logits: &opacity_logits[..1],
+            splats: Splats {
+                opacity_logits: &opacity_logits[..1],
+                ..cloud.splats
+            },
             ..cloud
         };
         assert!(write_splat_ply(&dir.path().join("b.ply"), &short).is_err());
@@ -384,18 +403,7 @@ mod tests {
             sh_degree: 1,
         };
         let path = dir.join("a.ply");
-        write_splat_ply(
-            &path,
-            &SplatCloud {
-                means: &data.means,
-                log_scales: &data.log_scales,
-                rotations: &data.rotations,
-                opacity_logits: &data.opacity_logits,
-                colours: &data.colours,
-                sh_degree: data.sh_degree,
-            },
-        )
-        .unwrap();
+        write_splat_ply(&path, &data.cloud()).unwrap();
         (path, data)
     }
 

@@ -15,18 +15,26 @@ use crate::kernels::splat::SPLAT_WIDTH;
 /// Joints and weights per Gaussian in a sparse skin.
 pub const SKIN_SLOTS: usize = 4;
 
-/// A cloud on the host, each Gaussian with its four joints: the layout a baked avatar is stored in.
+/// Gaussians on the host, borrowed, one entry per Gaussian: what a splat file holds and what the host
+/// projection reads (without the skin).
 #[derive(Debug, Clone, Copy)]
-pub struct HostCloud<'a> {
-    /// Canonical means, metres.
+pub struct Splats<'a> {
+    /// Means, metres (canonical space for an avatar; a splat file's world space for a posed frame).
     pub means: &'a [[f32; 3]],
     /// Logarithms of the standard deviations along the Gaussian's axes.
     pub log_scales: &'a [[f32; 3]],
-    /// Quaternions `(w, x, y, z)`, normalised here.
+    /// Quaternions `(w, x, y, z)`.
     pub rotations: &'a [[f32; 4]],
     pub opacity_logits: &'a [f32],
     /// `N × 3·(d+1)²` harmonic coefficients, coefficient-major ([`sh`]).
     pub colours: &'a [f32],
+}
+
+/// A cloud on the host, each Gaussian with its four joints: the layout a baked avatar is stored in.
+#[derive(Debug, Clone, Copy)]
+pub struct HostCloud<'a> {
+    /// Canonical Gaussians; quaternions are normalised where they are read.
+    pub splats: Splats<'a>,
     pub skin_joints: &'a [[u16; SKIN_SLOTS]],
     pub skin_weights: &'a [[f32; SKIN_SLOTS]],
 }
@@ -34,8 +42,9 @@ pub struct HostCloud<'a> {
 /// The splat rows `[N · SPLAT_WIDTH]` of `cloud` posed by `bones` (canonical → pose space) and seen in
 /// `view`, as [`super::project`] computes them.
 pub fn project_host(cloud: &HostCloud, bones: &BoneTransforms, view: &SplatView) -> Vec<f32> {
-    let n = cloud.means.len();
-    let width = cloud.colours.len() / n.max(1);
+    let splats = &cloud.splats;
+    let n = splats.means.len();
+    let width = splats.colours.len() / n.max(1);
     let degree = sh::degree_of(width).expect("colour coefficients of degree 0 or 1");
     let camera = view.camera;
     let (w, b) = view.pose_to_camera();
@@ -61,12 +70,12 @@ pub fn project_host(cloud: &HostCloud, bones: &BoneTransforms, view: &SplatView)
                     acc + matrices[j as usize] * wt
                 });
             let linear = Mat3::from_mat4(blended);
-            let posed = blended.transform_point3(Vec3::from(cloud.means[i]));
+            let posed = blended.transform_point3(Vec3::from(splats.means[i]));
             let cam = w * posed + b;
-            let [qw, qx, qy, qz] = cloud.rotations[i];
+            let [qw, qx, qy, qz] = splats.rotations[i];
             let q = Quat::from_xyzw(qx, qy, qz, qw);
             let q = q / q.length().max(1e-12);
-            let scales = Vec3::from(cloud.log_scales[i]).exp();
+            let scales = Vec3::from(splats.log_scales[i]).exp();
             let factor = w * linear * Mat3::from_quat(q) * Mat3::from_diagonal(scales);
             let z = cam.z.max(NEAR);
             let tx = (cam.x / z).clamp(-lx, lx) * z;
@@ -82,7 +91,7 @@ pub fn project_host(cloud: &HostCloud, bones: &BoneTransforms, view: &SplatView)
             let det = xx * yy - xy * xy;
             let canonical = linear.transpose() * (posed - eye);
             let dir = canonical / canonical.length().max(1e-12);
-            let c = &cloud.colours[i * width..(i + 1) * width];
+            let c = &splats.colours[i * width..(i + 1) * width];
             let coefficient = |m: usize| Vec3::new(c[3 * m], c[3 * m + 1], c[3 * m + 2]);
             let mut colour = coefficient(0) * sh::C0 + Vec3::splat(0.5);
             if degree == 1 {
@@ -91,7 +100,7 @@ pub fn project_host(cloud: &HostCloud, bones: &BoneTransforms, view: &SplatView)
                         * sh::C1;
             }
             let colour = colour.max(Vec3::ZERO);
-            let opacity = 1.0 / (1.0 + (-cloud.opacity_logits[i]).exp());
+            let opacity = 1.0 / (1.0 + (-splats.opacity_logits[i]).exp());
             let in_front = if cam.z > NEAR { 1.0 } else { 0.0 };
             row.copy_from_slice(&[
                 (cam.x * fx + cam.y * skew) / z + (cx - offset),

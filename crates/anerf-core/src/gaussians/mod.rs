@@ -15,7 +15,7 @@ pub mod sh;
 pub const MAX_GAUSSIANS: usize = 1 << 24;
 
 pub use cloud::GaussianCloud;
-pub use host::{project_host, HostCloud};
+pub use host::{project_host, HostCloud, Splats};
 pub use project::{project, render, SplatView};
 
 #[cfg(test)]

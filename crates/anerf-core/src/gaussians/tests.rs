@@ -458,11 +458,13 @@ fn host_projection_matches_the_tensor_projection() {
     let rotations: Vec<[f32; 4]> = h.rotations.iter().map(|q| [q.w, q.x, q.y, q.z]).collect();
     let colours: Vec<f32> = h.colours.iter().flatten().copied().collect();
     let cloud = HostCloud {
-        means: &means,
-        log_scales: &log_scales,
-        rotations: &rotations,
-        opacity_logits: &h.opacity_logits,
-        colours: &colours,
+        splats: Splats {
+            means: &means,
+            log_scales: &log_scales,
+            rotations: &rotations,
+            opacity_logits: &h.opacity_logits,
+            colours: &colours,
+        },
         skin_joints: &joints,
         skin_weights: &weights,
     };

@@ -5,7 +5,7 @@
 
 use std::path::{Path, PathBuf};
 
-use anerf_core::gaussians::sh;
+use anerf_core::gaussians::{sh, Splats};
 use anerf_core::geometry::{
     blend_transforms, mean_up, BoneTransforms, Camera, CanonicalPose, GlobalTransform,
 };
@@ -122,7 +122,10 @@ pub fn export_splats(
     let (_, fps, poses) = animation(job.motion.as_ref(), job.view, &exp, &model)?;
     write_splat_ply(
         &canonical_file,
-        &cloud_of(&avatar, &avatar.means, &avatar.rotations, &avatar.colours),
+        &SplatCloud {
+            splats: avatar.splats(),
+            sh_degree: avatar.info.sh_degree,
+        },
     )?;
     let skeleton = &exp.prepared.skeleton;
     let skin = SkinFile {
@@ -144,10 +147,7 @@ pub fn export_splats(
         let bones = skeleton.bone_transforms(pose, CanonicalPose::TPose)?;
         let posed = PosedSplats::of(&avatar, &bones, &pose.global)?;
         let file = dir.join("frames").join(format!("frame_{k:06}.ply"));
-        write_splat_ply(
-            &file,
-            &cloud_of(&avatar, &posed.means, &posed.rotations, &posed.colours),
-        )?;
+        write_splat_ply(&file, &posed.cloud(&avatar))?;
         let world = pose.global.pose_to_world_matrix();
         frames.push(
             bones
@@ -185,22 +185,6 @@ pub fn export_splats(
     })
 }
 
-fn cloud_of<'a>(
-    avatar: &'a BakedAvatar,
-    means: &'a [[f32; 3]],
-    rotations: &'a [[f32; 4]],
-    colours: &'a [f32],
-) -> SplatCloud<'a> {
-    SplatCloud {
-        means,
-        log_scales: &avatar.log_scales,
-        rotations,
-        opacity_logits: &avatar.opacity_logits,
-        colours,
-        sh_degree: avatar.info.sh_degree,
-    }
-}
-
 /// The avatar's Gaussians posed into world space: means by their blended bone transform then the global
 /// transform; orientations turned by the rotation nearest the blended linear part (the blend's small
 /// stretch is left out, as splat files hold no shear); degree-1 colour coefficients turned with them, so
@@ -213,6 +197,19 @@ pub struct PosedSplats {
 }
 
 impl PosedSplats {
+    /// The posed Gaussians with `avatar`'s scales and opacities, for a splat file.
+    pub fn cloud<'a>(&'a self, avatar: &'a BakedAvatar) -> SplatCloud<'a> {
+        SplatCloud {
+            splats: Splats {
+                means: &self.means,
+                rotations: &self.rotations,
+                colours: &self.colours,
+                ..avatar.splats()
+            },
+            sh_degree: avatar.info.sh_degree,
+        }
+    }
+
     pub fn of(
         avatar: &BakedAvatar,
         bones: &BoneTransforms,

@@ -8,7 +8,7 @@
 use std::path::Path;
 
 use anerf_core::gaussians::sh;
-use anerf_core::gaussians::{GaussianCloud, HostCloud, MAX_GAUSSIANS};
+use anerf_core::gaussians::{GaussianCloud, HostCloud, Splats, MAX_GAUSSIANS};
 use anerf_core::tensor::{from_rows, to_host};
 use anerf_data::atomic::{replace_dir, temp_dir_beside, write_bytes};
 use anerf_data::formats::ndarray::{ArrayData, NdArray};
@@ -64,14 +64,21 @@ pub struct BakedAvatar {
 }
 
 impl BakedAvatar {
-    /// The arrays as the host projection reads them.
-    pub fn host_cloud(&self) -> HostCloud<'_> {
-        HostCloud {
+    /// The Gaussians' arrays, in canonical space.
+    pub fn splats(&self) -> Splats<'_> {
+        Splats {
             means: &self.means,
             log_scales: &self.log_scales,
             rotations: &self.rotations,
             opacity_logits: &self.opacity_logits,
             colours: &self.colours,
+        }
+    }
+
+    /// The arrays as the host projection reads them.
+    pub fn host_cloud(&self) -> HostCloud<'_> {
+        HostCloud {
+            splats: self.splats(),
             skin_joints: &self.skin_joints,
             skin_weights: &self.skin_weights,
         }
