@@ -292,8 +292,11 @@ impl RaySampler {
             .iter()
             .enumerate()
             .map(|(k, step)| {
-                let n = total / images.len() + usize::from(k < total % images.len());
-                (step.frame, step.views.as_slice(), n)
+                (
+                    step.frame,
+                    step.views.as_slice(),
+                    share(total, images.len(), k),
+                )
             })
             .collect();
         self.sample_frames(subject, &shares)
@@ -329,8 +332,7 @@ impl RaySampler {
                 })?
                 .bounds;
             for (k, &view) in views.iter().enumerate() {
-                let n = rays / views.len() + usize::from(k < rays % views.len());
-                jobs.push((frame, view, bounds, n));
+                jobs.push((frame, view, bounds, share(rays, views.len(), k)));
             }
         }
         let mask_edges = self.options.mask_edges;
@@ -435,6 +437,12 @@ impl ReadImage {
             edge: Some(&self.edge),
         }
     }
+}
+
+/// Part `k` of `total` rays split over `parts` as evenly as whole rays allow, the first parts taking the
+/// remainder.
+fn share(total: usize, parts: usize, k: usize) -> usize {
+    total / parts + usize::from(k < total % parts)
 }
 
 /// Resampling rounds before giving up (each round keeps every ray that hits).
