@@ -37,6 +37,25 @@ impl Splat {
         (-0.5 * (a * dx * dx + c * dy * dy) - b * dx * dy, dx, dy)
     }
 
+    /// Its share of the point `(px, py)` under 3DGS's rules: `None` where the exponent is positive or the
+    /// alpha falls under [`ALPHA_MIN`].
+    fn at(&self, px: f32, py: f32) -> Option<Share> {
+        let (power, dx, dy) = self.power(px, py);
+        if power > 0.0 {
+            return None;
+        }
+        let gaussian = power.exp();
+        let raw = self.opacity * gaussian;
+        let alpha = raw.min(ALPHA_MAX);
+        (alpha >= ALPHA_MIN).then_some(Share {
+            alpha,
+            gaussian,
+            uncapped: raw < ALPHA_MAX,
+            dx,
+            dy,
+        })
+    }
+
     /// The half-widths in pixels (x, y) of the box outside which its alpha stays under [`ALPHA_MIN`]
     /// (slightly widened, so that binning never drops a pixel the per-pixel test would keep); `None` for a
     /// splat that touches no pixel (too transparent, not positive definite, not finite).
@@ -121,24 +140,32 @@ pub fn bin(splats: &[f32], spec: &RasterSpec) -> Bins {
     }
 }
 
-/// One splat's share of a pixel, as the compositing met it.
+/// A splat's alpha at a point and what its gradient needs.
 #[derive(Debug, Clone, Copy)]
-pub(super) struct Contribution {
-    index: u32,
+struct Share {
     /// The alpha composited (capped, at least [`ALPHA_MIN`]).
     alpha: f32,
     /// `exp(power)`.
     gaussian: f32,
-    /// Transmittance in front of the splat.
-    before: f32,
     /// Whether `opacity · gaussian` was under [`ALPHA_MAX`] (above, the cap holds alpha constant).
     uncapped: bool,
     dx: f32,
     dy: f32,
 }
 
+/// One splat's share of a pixel, as the compositing met it.
+#[derive(Debug, Clone, Copy)]
+pub(super) struct Contribution {
+    index: u32,
+    share: Share,
+    /// Transmittance in front of the splat.
+    before: f32,
+}
+
 /// Composites pixel `(x, y)` from `list` (front to back), calling `visit` with each splat that contributes;
-/// returns the colour (without background) and the transmittance left.
+/// returns the colour (without background) and the transmittance left. The plain pixel-by-pixel order the
+/// tests hold [`composite_band`]'s splat-major order to.
+#[cfg(test)]
 pub(super) fn composite(
     splats: &[f32],
     list: &[u32],
@@ -151,16 +178,10 @@ pub(super) fn composite(
     let mut t = 1.0f32;
     for &index in list {
         let s = Splat::read(splats, index as usize);
-        let (power, dx, dy) = s.power(px, py);
-        if power > 0.0 {
+        let Some(share) = s.at(px, py) else {
             continue;
-        }
-        let gaussian = power.exp();
-        let raw = s.opacity * gaussian;
-        let alpha = raw.min(ALPHA_MAX);
-        if alpha < ALPHA_MIN {
-            continue;
-        }
+        };
+        let alpha = share.alpha;
         let after = t * (1.0 - alpha);
         if after < T_MIN {
             break;
@@ -170,113 +191,130 @@ pub(super) fn composite(
         }
         visit(&Contribution {
             index,
-            alpha,
-            gaussian,
+            share,
             before: t,
-            uncapped: raw < ALPHA_MAX,
-            dx,
-            dy,
         });
         t = after;
     }
     (rgb, t)
 }
 
-/// Renders the splats into `out` (`[H·W, PIXEL_WIDTH]`, row-major pixels): premultiplied colour and alpha.
-///
-/// Tile by tile, splat-major: each splat of a tile's front-to-back list visits only the tile's pixels inside
-/// its cut-off box that are still open, so a pixel meets the same splats in the same order with the same
-/// arithmetic as [`composite`] (which the backward pass replays) at a fraction of the tests.
-pub fn forward(splats: &[f32], spec: &RasterSpec, out: &mut [f32]) {
-    let (w, h) = (spec.width as usize, spec.height as usize);
-    assert_eq!(out.len(), w * h * PIXEL_WIDTH, "rasteriser output");
-    let bins = bin(splats, spec);
-    let n = splats.len() / SPLAT_WIDTH;
-    let boxes: Vec<Option<(Splat, [f32; 4])>> = (0..n)
+/// Each splat's pixel box (`[x_lo, x_hi, y_lo, y_hi]`, pixels) beside the splat; `None` for a splat that
+/// touches no pixel.
+fn boxes(splats: &[f32]) -> Vec<Option<(Splat, [f32; 4])>> {
+    (0..splats.len() / SPLAT_WIDTH)
         .into_par_iter()
         .map(|i| {
             let s = Splat::read(splats, i);
             let (ex, ey) = s.extent()?;
-            Some((
-                s,
-                [
-                    s.mean[0] - ex,
-                    s.mean[0] + ex,
-                    s.mean[1] - ey,
-                    s.mean[1] + ey,
-                ],
-            ))
+            let [mx, my] = s.mean;
+            Some((s, [mx - ex, mx + ex, my - ey, my + ey]))
         })
-        .collect();
+        .collect()
+}
+
+/// Composites the band of tile row `ty` (`rows` image rows of width `w`) tile by tile, splat-major: each
+/// splat of a tile's front-to-back list visits only the tile's pixels inside its cut-off box that are still
+/// open, so a pixel meets the same splats in the same order with the same arithmetic as [`composite`] at
+/// a fraction of the tests. Writes each pixel's colour and transmittance into `pixels` (`[rows · w]`,
+/// row-major within the band) and calls `visit(k, contribution)` for pixel `k`'s contributions, front to
+/// back.
+fn composite_band(
+    bins: &Bins,
+    boxes: &[Option<(Splat, [f32; 4])>],
+    ty: usize,
+    w: usize,
+    rows: usize,
+    pixels: &mut [[f32; PIXEL_WIDTH]],
+    mut visit: impl FnMut(usize, &Contribution),
+) {
     let tile = TILE as usize;
-    let band = tile * w * PIXEL_WIDTH;
-    out.par_chunks_mut(band).enumerate().for_each(|(ty, rows)| {
-        let rows_here = rows.len() / (w * PIXEL_WIDTH);
-        let mut open = [true; (TILE * TILE) as usize];
-        let mut acc = [[0.0f32; PIXEL_WIDTH]; (TILE * TILE) as usize];
-        for tx in 0..bins.tiles_x {
-            let (x0, y0) = (tx * tile, ty * tile);
-            let cols_here = tile.min(w - x0);
-            open.fill(true);
-            // Colour and transmittance per pixel of the tile.
-            acc.fill([0.0, 0.0, 0.0, 1.0]);
-            let mut remaining = cols_here * rows_here;
-            for &index in bins.tile(tx, ty) {
-                let Some((s, [lx, hx, ly, hy])) = &boxes[index as usize] else {
-                    continue;
-                };
-                // The tile's pixels inside the box (pixel (x, y) sits at the point (x, y)).
-                let span = |lo: f32, hi: f32, start: usize, len: usize| {
-                    let first = lo.ceil().max(start as f32);
-                    let last = hi.floor().min((start + len - 1) as f32);
-                    first as usize..(last + 1.0).max(first) as usize
-                };
-                for y in span(*ly, *hy, y0, rows_here) {
-                    for x in span(*lx, *hx, x0, cols_here) {
-                        let k = (y - y0) * tile + (x - x0);
-                        if !open[k] {
-                            continue;
-                        }
-                        let (power, _, _) = s.power(x as f32, y as f32);
-                        if power > 0.0 {
-                            continue;
-                        }
-                        let alpha = (s.opacity * power.exp()).min(ALPHA_MAX);
-                        if alpha < ALPHA_MIN {
-                            continue;
-                        }
-                        let pixel = &mut acc[k];
-                        let t = pixel[3];
-                        let after = t * (1.0 - alpha);
-                        if after < T_MIN {
-                            open[k] = false;
-                            remaining -= 1;
-                            continue;
-                        }
-                        for (c, v) in pixel[..3].iter_mut().zip(s.colour) {
-                            *c += t * alpha * v;
-                        }
-                        pixel[3] = after;
+    pixels.fill([0.0, 0.0, 0.0, 1.0]);
+    let mut open = [true; (TILE * TILE) as usize];
+    for tx in 0..bins.tiles_x {
+        let (x0, y0) = (tx * tile, ty * tile);
+        let cols = tile.min(w - x0);
+        open.fill(true);
+        let mut remaining = cols * rows;
+        for &index in bins.tile(tx, ty) {
+            let Some((s, [lx, hx, ly, hy])) = &boxes[index as usize] else {
+                continue;
+            };
+            // The tile's pixels inside the box (pixel (x, y) sits at the point (x, y)).
+            let span = |lo: f32, hi: f32, start: usize, len: usize| {
+                let first = lo.ceil().max(start as f32);
+                let last = hi.floor().min((start + len - 1) as f32);
+                first as usize..(last + 1.0).max(first) as usize
+            };
+            for y in span(*ly, *hy, y0, rows) {
+                for x in span(*lx, *hx, x0, cols) {
+                    let o = (y - y0) * tile + (x - x0);
+                    if !open[o] {
+                        continue;
                     }
-                }
-                if remaining == 0 {
-                    break;
+                    let Some(share) = s.at(x as f32, y as f32) else {
+                        continue;
+                    };
+                    let alpha = share.alpha;
+                    let k = (y - y0) * w + x;
+                    let pixel = &mut pixels[k];
+                    let t = pixel[3];
+                    let after = t * (1.0 - alpha);
+                    if after < T_MIN {
+                        open[o] = false;
+                        remaining -= 1;
+                        continue;
+                    }
+                    for (c, v) in pixel[..3].iter_mut().zip(s.colour) {
+                        *c += t * alpha * v;
+                    }
+                    pixel[3] = after;
+                    visit(
+                        k,
+                        &Contribution {
+                            index,
+                            share,
+                            before: t,
+                        },
+                    );
                 }
             }
-            for r in 0..rows_here {
-                for c in 0..cols_here {
-                    let p = acc[r * tile + c];
-                    let at = (r * w + x0 + c) * PIXEL_WIDTH;
-                    rows[at..at + 3].copy_from_slice(&p[..3]);
-                    rows[at + 3] = 1.0 - p[3];
-                }
+            if remaining == 0 {
+                break;
             }
+        }
+    }
+}
+
+/// Renders the splats into `out` (`[H·W, PIXEL_WIDTH]`, row-major pixels): premultiplied colour and alpha,
+/// bands of [`TILE`] rows in parallel ([`composite_band`]).
+pub fn forward(splats: &[f32], spec: &RasterSpec, out: &mut [f32]) {
+    let (w, h) = (spec.width as usize, spec.height as usize);
+    assert_eq!(out.len(), w * h * PIXEL_WIDTH, "rasteriser output");
+    let bins = bin(splats, spec);
+    let boxes = boxes(splats);
+    let band = TILE as usize * w * PIXEL_WIDTH;
+    out.par_chunks_mut(band).enumerate().for_each(|(ty, rows)| {
+        let mut pixels = vec![[0.0; PIXEL_WIDTH]; rows.len() / PIXEL_WIDTH];
+        composite_band(
+            &bins,
+            &boxes,
+            ty,
+            w,
+            pixels.len() / w,
+            &mut pixels,
+            |_, _| {},
+        );
+        for (p, o) in pixels.iter().zip(rows.chunks_mut(PIXEL_WIDTH)) {
+            o[..3].copy_from_slice(&p[..3]);
+            o[3] = 1.0 - p[3];
         }
     });
 }
 
 /// The gradient of the splats (`[N, SPLAT_WIDTH]`; the depth's is 0) from the gradient of the output
-/// (`[H·W, PIXEL_WIDTH]`).
+/// (`[H·W, PIXEL_WIDTH]`): each band is composited again as [`forward`] does it, keeping every pixel's
+/// contributions, whose gradients [`pixel_backward`] then adds pixel by pixel.
 pub fn backward(splats: &[f32], grad: &[f32], spec: &RasterSpec, out: &mut [f32]) {
     let (w, h) = (spec.width as usize, spec.height as usize);
     assert_eq!(
@@ -286,26 +324,28 @@ pub fn backward(splats: &[f32], grad: &[f32], spec: &RasterSpec, out: &mut [f32]
     );
     assert_eq!(out.len(), splats.len(), "splat gradient");
     let bins = bin(splats, spec);
+    let boxes = boxes(splats);
     let band = TILE as usize * w * PIXEL_WIDTH;
     let total = grad
         .par_chunks(band)
         .enumerate()
         .fold(
-            || (vec![0.0f32; splats.len()], Vec::new()),
-            |(mut acc, mut seen), (ty, rows)| {
-                for (r, row) in rows.chunks(w * PIXEL_WIDTH).enumerate() {
-                    let y = ty * TILE as usize + r;
-                    for (x, g) in row.chunks(PIXEL_WIDTH).enumerate() {
-                        let list = bins.tile(x / TILE as usize, ty);
-                        seen.clear();
-                        let (_, t_final) = composite(splats, list, x, y, |c| seen.push(*c));
-                        pixel_backward(splats, &seen, t_final, g, &mut acc);
-                    }
+            || (vec![0.0f32; splats.len()], Vec::new(), Vec::new()),
+            |(mut acc, mut pixels, mut seen), (ty, g)| {
+                let n = g.len() / PIXEL_WIDTH;
+                pixels.resize(n, [0.0; PIXEL_WIDTH]);
+                seen.resize_with(n, Vec::new);
+                seen.iter_mut().for_each(Vec::clear);
+                composite_band(&bins, &boxes, ty, w, n / w, &mut pixels[..n], |k, c| {
+                    seen[k].push(*c)
+                });
+                for (k, g) in g.chunks(PIXEL_WIDTH).enumerate() {
+                    pixel_backward(splats, &seen[k], pixels[k][3], g, &mut acc);
                 }
-                (acc, seen)
+                (acc, pixels, seen)
             },
         )
-        .map(|(acc, _)| acc)
+        .map(|(acc, _, _)| acc)
         .reduce(
             || vec![0.0f32; splats.len()],
             |mut a, b| {
@@ -322,28 +362,34 @@ pub fn backward(splats: &[f32], grad: &[f32], spec: &RasterSpec, out: &mut [f32]
 /// With `C = Σ T_k α_k c_k`, `A = 1 − T_final` and `R_k = Σ_{j>k} T_j α_j c_j` (the colour behind `k`):
 /// `∂C/∂c_k = T_k α_k`, `∂C/∂α_k = T_k c_k − R_k / (1 − α_k)`, `∂A/∂α_k = T_final / (1 − α_k)`; and
 /// below the cap `α = o · exp(p)`, so `∂α/∂o = exp(p)` and `∂α/∂p = α`.
-fn pixel_backward(splats: &[f32], seen: &[Contribution], t_final: f32, g: &[f32], acc: &mut [f32]) {
+pub(super) fn pixel_backward(
+    splats: &[f32],
+    seen: &[Contribution],
+    t_final: f32,
+    g: &[f32],
+    acc: &mut [f32],
+) {
     let (g_rgb, g_alpha) = ([g[0], g[1], g[2]], g[3]);
     let mut behind = [0.0f32; 3];
     for c in seen.iter().rev() {
         let i = c.index as usize;
         let s = Splat::read(splats, i);
         let row = &mut acc[i * SPLAT_WIDTH..(i + 1) * SPLAT_WIDTH];
-        let weight = c.before * c.alpha;
-        let keep = 1.0 - c.alpha;
+        let weight = c.before * c.share.alpha;
+        let keep = 1.0 - c.share.alpha;
         let mut g_a = g_alpha * t_final / keep;
         for k in 0..3 {
             row[5 + k] += weight * g_rgb[k];
             g_a += g_rgb[k] * (c.before * s.colour[k] - behind[k] / keep);
             behind[k] += weight * s.colour[k];
         }
-        if !c.uncapped {
+        if !c.share.uncapped {
             continue;
         }
-        row[8] += g_a * c.gaussian;
-        let g_p = g_a * c.alpha;
+        row[8] += g_a * c.share.gaussian;
+        let g_p = g_a * c.share.alpha;
         let [a, b, cc] = s.conic;
-        let (dx, dy) = (c.dx, c.dy);
+        let (dx, dy) = (c.share.dx, c.share.dy);
         // p = −(a dx² + c dy²)/2 − b dx dy with dx = x − mean_x.
         row[0] += g_p * (a * dx + b * dy);
         row[1] += g_p * (cc * dy + b * dx);

@@ -258,6 +258,44 @@ fn the_forward_pass_is_the_pixel_by_pixel_compositing_exactly() {
     }
 }
 
+/// The splat-major backward pass keeps the contributions the pixel-by-pixel compositing finds: its
+/// gradient is the sum of [`cpu::pixel_backward`] over every pixel's [`cpu::composite`] (up to the order
+/// of the sums).
+#[test]
+fn the_backward_pass_is_the_pixel_by_pixel_gradient() {
+    let spec = RasterSpec {
+        width: 37,
+        height: 29,
+    };
+    let rows = scene(400, 37.0, 29.0);
+    let g = weights(&spec);
+    let mut got = vec![0.0; rows.len()];
+    cpu::backward(&rows, &g, &spec, &mut got);
+    let bins = cpu::bin(&rows, &spec);
+    let tile = TILE as usize;
+    let mut want = vec![0.0; rows.len()];
+    let mut seen = Vec::new();
+    for y in 0..29 {
+        for x in 0..37 {
+            seen.clear();
+            let list = bins.tile(x / tile, y / tile);
+            let (_, t) = cpu::composite(&rows, list, x, y, |c| seen.push(*c));
+            let at = (y * 37 + x) * PIXEL_WIDTH;
+            cpu::pixel_backward(&rows, &seen, t, &g[at..at + PIXEL_WIDTH], &mut want);
+        }
+    }
+    let scale = want.iter().fold(0.0f32, |m, v| m.max(v.abs()));
+    for (i, (a, b)) in got.iter().zip(&want).enumerate() {
+        assert!(
+            (a - b).abs() <= 1e-5 * scale,
+            "splat {} value {}: {a} vs {b}",
+            i / SPLAT_WIDTH,
+            i % SPLAT_WIDTH
+        );
+    }
+    assert!(want.iter().filter(|v| **v != 0.0).count() > rows.len() / 4);
+}
+
 /// The gradient of `Σ weights ⊙ rasterize(splats)` through the kernel or the reference.
 fn gradient(rows: &[f32], spec: &RasterSpec, weights: &[f32], use_kernel: bool) -> Vec<f32> {
     let device = cpu_device().autodiff();
