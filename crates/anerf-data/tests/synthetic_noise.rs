@@ -1,4 +1,5 @@
-//! Pose and mask noise of synthetic subjects (`anerf synth --pose-noise`, `--mask-noise`), checked against
+//! Pose and mask noise and backdrops of synthetic subjects (`anerf synth --pose-noise`, `--mask-noise`,
+//! `--backdrop`), checked against
 //! the noise-free subject of the same spec and seed: the noisy files are self-consistent, the truth is kept,
 //! the noise has the size asked for, and nothing else changes.
 
@@ -9,7 +10,7 @@ use anerf_core::geometry::{
 };
 use anerf_data::formats::read_npy;
 use anerf_data::loaders::read_pose_file;
-use anerf_data::synthetic::{write_subject, PoseNoise, SyntheticSpec, SyntheticSummary};
+use anerf_data::synthetic::{write_subject, Backdrop, PoseNoise, SyntheticSpec, SyntheticSummary};
 use anerf_data::{load_zju_mocap, LoadOptions, Subject};
 use glam::{Vec2, Vec3};
 
@@ -220,6 +221,7 @@ fn noise_options_are_checked_and_old_specs_still_parse() {
     let fields = old.as_object_mut().unwrap();
     fields.remove("pose_noise").unwrap();
     fields.remove("mask_noise").unwrap();
+    fields.remove("backdrop").unwrap();
     let parsed: SyntheticSpec = serde_json::from_value(old).unwrap();
     assert_eq!(parsed, SyntheticSpec::tiny());
 }
@@ -312,4 +314,115 @@ fn mask_noise_moves_edges_both_ways_within_its_reach_and_nothing_else() {
         differing.iter().all(|f| f.starts_with("mask_cihp")),
         "{differing:?}"
     );
+}
+
+fn read_rgb(path: &Path) -> image::RgbImage {
+    image::open(path).unwrap().to_rgb8()
+}
+
+/// Whether every pixel within `r` of `(x, y)` (a square) has `mask` value `value`.
+fn all_around(mask: &image::GrayImage, x: u32, y: u32, r: i64, value: bool) -> bool {
+    let (w, h) = (mask.width() as i64, mask.height() as i64);
+    (-r..=r).all(|dy| {
+        (-r..=r).all(|dx| {
+            let (u, v) = (x as i64 + dx, y as i64 + dy);
+            !(0..w).contains(&u)
+                || !(0..h).contains(&v)
+                || (mask.get_pixel(u as u32, v as u32)[0] > 0) == value
+        })
+    })
+}
+
+#[test]
+fn a_room_backdrop_changes_only_what_lies_behind_the_body_and_stays_put() {
+    let dir = tempfile::tempdir().unwrap();
+    // Twice tiny's resolution and JPEG's finest quality, so that the body has pixels beyond the edge's ringing.
+    let mut black = SyntheticSpec {
+        jpeg_quality: 100,
+        ..SyntheticSpec::tiny()
+    };
+    black.rig.resolution = 128;
+    let spec = SyntheticSpec {
+        backdrop: Backdrop::Room,
+        ..black.clone()
+    };
+    let exact = write_subject(&black, &dir.path().join("black")).unwrap();
+    let written = write_subject(&spec, &dir.path().join("room")).unwrap();
+    // Masks and every array are the black subject's; only images differ.
+    let differing = differing_files(&exact.subject.root, &written.subject.root);
+    assert!(
+        differing
+            .iter()
+            .all(|f| !f.starts_with("mask_cihp") && f.extension().is_some_and(|e| e == "jpg")),
+        "{differing:?}"
+    );
+    let frames = &written.subject.frames;
+    for v in 0..written.subject.cameras.len() {
+        let (mut inside, mut inside_diff) = (0usize, 0u64);
+        let (mut outside, mut outside_sum) = (0usize, 0u64);
+        let (mut still, mut still_diff) = (0usize, 0u64);
+        for f in 0..frames.len() {
+            let mask = read_mask(&frames[f].masks[v]);
+            let room = read_rgb(&frames[f].images[v]);
+            let black = read_rgb(&exact.subject.frames[f].images[v]);
+            let later = (f + 1 < frames.len()).then(|| {
+                (
+                    read_mask(&frames[f + 1].masks[v]),
+                    read_rgb(&frames[f + 1].images[v]),
+                )
+            });
+            for (x, y, p) in room.enumerate_pixels() {
+                let sum = |q: &image::Rgb<u8>| q.0.iter().map(|&c| c as u64).sum::<u64>();
+                let diff = |q: &image::Rgb<u8>| {
+                    p.0.iter()
+                        .zip(q.0)
+                        .map(|(&a, b)| (a as i64 - b as i64).unsigned_abs())
+                        .sum::<u64>()
+                };
+                if all_around(&mask, x, y, 3, true) {
+                    // Inside the body, beyond JPEG's ringing at the edge: the black subject's colours.
+                    inside += 1;
+                    inside_diff += diff(black.get_pixel(x, y));
+                } else if all_around(&mask, x, y, 2, false) {
+                    outside += 1;
+                    outside_sum += sum(p);
+                    // Where the body is away in the next frame too, the same backdrop.
+                    if let Some((next_mask, next)) = &later {
+                        if all_around(next_mask, x, y, 8, false)
+                            && all_around(&mask, x, y, 8, false)
+                        {
+                            still += 1;
+                            still_diff += diff(next.get_pixel(x, y));
+                        }
+                    }
+                }
+            }
+        }
+        let mean = |total: u64, n: usize| total as f64 / (3 * n.max(1)) as f64;
+        println!(
+            "view {v}: inside {:.2} off, backdrop {:.1} bright, {:.3} change between frames",
+            mean(inside_diff, inside),
+            mean(outside_sum, outside),
+            mean(still_diff, still)
+        );
+        assert!(
+            inside > 100 && outside > 1000 && still > 1000,
+            "{inside} {outside} {still}"
+        );
+        assert!(
+            mean(inside_diff, inside) < 3.0,
+            "view {v}: the body changed"
+        );
+        assert!(
+            mean(outside_sum, outside) > 40.0,
+            "view {v}: the backdrop is dark"
+        );
+        assert!(
+            mean(still_diff, still) < 1.0,
+            "view {v}: the backdrop moved"
+        );
+    }
+    // The cameras see different parts of the room.
+    let first: Vec<image::RgbImage> = (0..2).map(|v| read_rgb(&frames[0].images[v])).collect();
+    assert_ne!(first[0], first[1]);
 }

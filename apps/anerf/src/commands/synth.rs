@@ -3,7 +3,7 @@
 use std::path::{Path, PathBuf};
 
 use anerf_data::synthetic::{
-    write_subject, PoseNoise, SynthPreset, SyntheticSpec, SyntheticSummary,
+    write_subject, Backdrop, PoseNoise, SynthPreset, SyntheticSpec, SyntheticSummary,
 };
 use anyhow::{Context, Result};
 use clap::Args;
@@ -29,6 +29,11 @@ pub struct SynthArgs {
     /// moves in and out smoothly along the contour; the images stay exact.
     #[arg(long, value_name = "PX", default_value_t = 0.0)]
     pub mask_noise: f32,
+    /// What the images show behind the body: black (the NeRF's convention) or room (a floor, panelled
+    /// walls and a ceiling fixed in the world, as a capture's backdrop; training masks it as it masks a
+    /// capture's). The masks are the body's either way.
+    #[arg(long, default_value = "black")]
+    pub backdrop: Backdrop,
 }
 
 pub fn run(args: &SynthArgs) -> Result<()> {
@@ -38,6 +43,7 @@ pub fn run(args: &SynthArgs) -> Result<()> {
     }
     spec.pose_noise = args.pose_noise;
     spec.mask_noise = args.mask_noise;
+    spec.backdrop = args.backdrop;
     let summary = write_subject(&spec, &args.out)
         .with_context(|| format!("writing the synthetic subject to {}", args.out.display()))?;
     print_written(&args.out, &spec, &summary);
@@ -62,5 +68,8 @@ pub fn print_written(out: &Path, spec: &SyntheticSpec, summary: &SyntheticSummar
     }
     if spec.mask_noise > 0.0 {
         println!("mask noise: edges moved by up to {} px", spec.mask_noise);
+    }
+    if spec.backdrop != Backdrop::Black {
+        println!("backdrop: {}", spec.backdrop);
     }
 }

@@ -170,6 +170,17 @@ impl Camera {
         }
     }
 
+    /// The ray through point `p` of the raw (distorted) image, integer convention: the inverse of
+    /// [`Camera::project_distorted`] (`D` removed by [`Distortion::remove`]).
+    pub fn raw_pixel_ray(&self, p: Vec2) -> Ray {
+        let n = self.intrinsics.inverse() * p.extend(1.0);
+        let undistorted = self.distortion.remove(Vec2::new(n.x / n.z, n.y / n.z));
+        Ray {
+            origin: self.center(),
+            direction: (self.rotation.transpose() * undistorted.extend(1.0)).normalize(),
+        }
+    }
+
     /// Rays of every pixel of a `width × height` image, row by row.
     pub fn image_rays(&self, convention: PixelConvention) -> Vec<Ray> {
         let k_inv = self.intrinsics.inverse();
@@ -285,6 +296,25 @@ mod tests {
         for &(x, y) in &[(0.0f32, 0.0f32), (0.2, -0.1), (-0.35, 0.3), (0.4, 0.25)] {
             let p = Vec2::new(x, y);
             assert!((d.remove(d.apply(p)) - p).length() < 1e-5);
+        }
+    }
+
+    #[test]
+    fn points_along_a_raw_pixel_ray_project_back_onto_that_raw_pixel() {
+        let cam = Camera {
+            distortion: Distortion([-0.2, 0.05, 0.001, -0.002, 0.0]),
+            ..test_camera()
+        };
+        for &(u, v) in &[(0.0, 0.0), (17.5, 300.25), (639.0, 479.0), (320.0, 240.0)] {
+            let ray = cam.raw_pixel_ray(Vec2::new(u, v));
+            assert!((ray.direction.length() - 1.0).abs() < 1e-6);
+            for t in [0.5f32, 3.7, 10.0] {
+                let px = cam.project_distorted(ray.at(t)).unwrap();
+                assert!(
+                    (px - Vec2::new(u, v)).length() < 1e-2,
+                    "{u},{v} t={t}: {px}"
+                );
+            }
         }
     }
 

@@ -16,6 +16,7 @@ use image::ImageEncoder;
 use rayon::prelude::*;
 
 use super::appearance::Outfit;
+use super::backdrop::Plate;
 use super::body::{build_body, Body};
 use super::cameras::ring_cameras;
 use super::clothing::dress;
@@ -149,6 +150,10 @@ fn write_into(
         }
     }
     let outfit = Outfit::new(&spec.body);
+    let plates: Vec<Option<Plate>> = cameras
+        .par_iter()
+        .map(|c| spec.backdrop.plate(c, spec.supersampling))
+        .collect();
     // Frame by frame (its shadow maps serve every camera), cameras in turn.
     let counts: Vec<Vec<usize>> = frames
         .par_iter()
@@ -173,11 +178,16 @@ fn write_into(
             (0..cameras.len())
                 .map(|v| {
                     let eye = cameras[v].center();
-                    let mut view =
-                        render(&cameras[v], &scene, spec.supersampling, |s| match &lit {
+                    let mut view = render(
+                        &cameras[v],
+                        &scene,
+                        spec.supersampling,
+                        |s| match &lit {
                             Some(lit) => lit.shade(outfit.albedo(s.canonical), s, eye),
                             None => outfit.colour(s.canonical, s.canonical_normal),
-                        });
+                        },
+                        plates[v].as_ref(),
+                    );
                     if spec.mask_noise > 0.0 {
                         let (w, h) = (view.width as usize, view.height as usize);
                         let item = (f * cameras.len() + v) as u64;

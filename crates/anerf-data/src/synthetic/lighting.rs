@@ -296,7 +296,7 @@ mod tests {
         let mut brightest = Vec::new();
         for eye in [Vec3::new(0.0, -3.0, 0.3), Vec3::new(2.6, -1.5, 0.3)] {
             let camera = camera_at(eye);
-            let view = render(&camera, &scene, 2, |s| lit.shade(albedo, s, eye));
+            let view = render(&camera, &scene, 2, |s| lit.shade(albedo, s, eye), None);
             let (mut checked, mut worst, mut best) = (0, 0.0f32, (0.0f32, Vec3::ZERO));
             for v in 0..96 {
                 for u in 0..96 {
@@ -392,7 +392,7 @@ mod tests {
         };
         let eye = Vec3::new(-2.0, -2.5, 2.0);
         let camera = camera_at(eye);
-        let view = render(&camera, &scene, 1, |s| lit.shade(Vec3::ONE, s, eye));
+        let view = render(&camera, &scene, 1, |s| lit.shade(Vec3::ONE, s, eye), None);
         let p = camera
             .project(shadow_centre, PixelConvention::Integer)
             .unwrap()

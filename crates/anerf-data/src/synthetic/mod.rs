@@ -3,6 +3,7 @@
 //! Needs no dataset and no SMPL licence; deterministic under a seed.
 
 pub mod appearance;
+pub mod backdrop;
 pub mod body;
 pub mod cameras;
 pub mod clothing;
@@ -23,6 +24,7 @@ use glam::Vec3;
 use serde::{Deserialize, Serialize};
 use thiserror::Error;
 
+pub use backdrop::Backdrop;
 pub use body::{build_body, Body, BodyShape};
 pub use cameras::RigSpec;
 pub use clothing::ClothingSpec;
@@ -67,6 +69,10 @@ pub struct SyntheticSpec {
     /// 0: the masks are exact). The images stay exact.
     #[serde(default)]
     pub mask_noise: f32,
+    /// What the images show behind the body (absent: black, as every earlier subject). The masks stay the
+    /// body's exact coverage either way.
+    #[serde(default)]
+    pub backdrop: Backdrop,
 }
 
 /// The named subjects of `anerf synth --preset`.
@@ -154,6 +160,7 @@ impl SyntheticSpec {
             clothing: None,
             pose_noise: None,
             mask_noise: 0.0,
+            backdrop: Backdrop::Black,
         }
     }
 
@@ -184,6 +191,7 @@ impl SyntheticSpec {
             clothing: None,
             pose_noise: None,
             mask_noise: 0.0,
+            backdrop: Backdrop::Black,
         }
     }
 
@@ -233,6 +241,7 @@ impl SyntheticSpec {
             clothing: None,
             pose_noise: None,
             mask_noise: 0.0,
+            backdrop: Backdrop::Black,
         }
     }
 

@@ -1,6 +1,6 @@
 //! Ground-truth images by rasterising the posed mesh: a z-buffer over a supersampled grid, perspective-
-//! correct interpolation of canonical and world positions and normals, and exact masks on a black
-//! background. Independent of the NeRF renderer on purpose.
+//! correct interpolation of canonical and world positions and normals, and exact masks, over black or a
+//! backdrop ([`super::backdrop`]). Independent of the NeRF renderer on purpose.
 //!
 //! The mask is the set of pixels whose square touches the projected surface (conservative coverage,
 //! computed exactly per triangle, not from samples), so it holds every pixel with any colour and the
@@ -14,6 +14,8 @@
 
 use anerf_core::geometry::Camera;
 use glam::{Vec2, Vec3};
+
+use super::backdrop::Plate;
 
 /// A posed mesh with what is needed to colour it.
 pub struct Scene<'a> {
@@ -41,7 +43,7 @@ pub struct Surface {
 }
 
 /// One rendered view: 8-bit RGB (row-major, 3 bytes per pixel) and a mask (255 where the pixel's square
-/// touches the projected body, 0 elsewhere; colours are exactly 0 outside the mask).
+/// touches the projected body, 0 elsewhere; on black, colours are exactly 0 outside the mask).
 #[derive(Debug, Clone, PartialEq)]
 pub struct RenderedView {
     pub width: u32,
@@ -147,12 +149,14 @@ fn rasterize(
 }
 
 /// Renders `scene` seen by `camera` with `samples × samples` samples per pixel, colouring each visible
-/// sample with `shade` (linear RGB, clamped to `[0, 1]`) and averaging.
+/// sample with `shade` (linear RGB, clamped to `[0, 1]`), each other sample with `backdrop` (the same
+/// camera's and `samples`; black without one) and averaging.
 pub fn render(
     camera: &Camera,
     scene: &Scene,
     samples: u32,
     shade: impl Fn(&Surface) -> Vec3,
+    backdrop: Option<&Plate>,
 ) -> RenderedView {
     let s = samples as usize;
     let (w, h) = (camera.width as usize, camera.height as usize);
@@ -171,6 +175,10 @@ pub fn render(
                 for sx in 0..s {
                     let (fi, b1, b2) = z.hit[(v * s + sy) * z.width + u * s + sx];
                     if fi == u32::MAX {
+                        if let Some(plate) = backdrop {
+                            covered = true;
+                            sum += plate.at(u * s + sx, v * s + sy);
+                        }
                         continue;
                     }
                     covered = true;
@@ -348,7 +356,7 @@ mod tests {
         let sphere = Sphere::new(r);
         let scene = sphere.scene();
         let cam = camera([0.0; 5]);
-        let view = render(&cam, &scene, 4, |_| Vec3::ONE);
+        let view = render(&cam, &scene, 4, |_| Vec3::ONE, None);
         // The silhouette of a sphere at distance d seen by a pinhole is a disc of radius f·r/√(d² − r²).
         let radius = 100.0 * r / (9.0f32 - r * r).sqrt();
         let centre = Vec2::new(31.5, 32.0);
@@ -384,9 +392,13 @@ mod tests {
         // The visible part of a sphere seen from distance 3 is the cap y < −r²/3 facing the camera.
         let sphere = Sphere::new(0.6);
         let scene = sphere.scene();
-        let view = render(&camera([0.0; 5]), &scene, 1, |s| {
-            Vec3::splat(0.5 - s.canonical.y)
-        });
+        let view = render(
+            &camera([0.0; 5]),
+            &scene,
+            1,
+            |s| Vec3::splat(0.5 - s.canonical.y),
+            None,
+        );
         let mut seen = 0;
         for i in 0..64 * 64 {
             if view.rgb[3 * i] > 0 {
@@ -420,9 +432,13 @@ mod tests {
             normals: &normals,
         };
         let cam = camera([0.0; 5]);
-        let view = render(&cam, &scene, 1, |s| {
-            Vec3::splat((s.canonical.y + 3.0) / 20.0)
-        });
+        let view = render(
+            &cam,
+            &scene,
+            1,
+            |s| Vec3::splat((s.canonical.y + 3.0) / 20.0),
+            None,
+        );
         let mut checked = 0;
         for v in 40..64 {
             for u in [10, 31, 50] {
@@ -449,8 +465,8 @@ mod tests {
         let sphere = Sphere::new(0.5);
         let scene = sphere.scene();
         let cam = camera([-0.2, 0.05, 0.003, -0.002, 0.0]);
-        let view = render(&cam, &scene, 3, |_| Vec3::ONE);
-        let plain = render(&camera([0.0; 5]), &scene, 3, |_| Vec3::ONE);
+        let view = render(&cam, &scene, 3, |_| Vec3::ONE, None);
+        let plain = render(&camera([0.0; 5]), &scene, 3, |_| Vec3::ONE, None);
         assert_ne!(view.mask, plain.mask, "distortion changed nothing");
         for &x in &sphere.mesh.vertices {
             let p = cam.project_distorted(x).unwrap().round();
@@ -472,6 +488,54 @@ mod tests {
         assert!(
             masked >= coloured && ((masked - coloured) as f32) < 1.5 * rim,
             "{masked} vs {coloured}"
+        );
+    }
+
+    #[test]
+    fn a_backdrop_fills_the_uncovered_samples_and_changes_nothing_else() {
+        use super::super::backdrop::Backdrop;
+        let sphere = Sphere::new(0.5);
+        let scene = sphere.scene();
+        let cam = camera([-0.2, 0.05, 0.003, -0.002, 0.0]);
+        let samples = 3;
+        let plate = Backdrop::Room.plate(&cam, samples).unwrap();
+        let plain = render(&cam, &scene, samples, |_| Vec3::ONE, None);
+        let view = render(&cam, &scene, samples, |_| Vec3::ONE, Some(&plate));
+        assert_eq!(view.mask, plain.mask);
+        let (mut empty, mut full, mut partial) = (0, 0, 0);
+        for v in 0..64 {
+            for u in 0..64 {
+                let i = v * 64 + u;
+                let (got, body) = (&view.rgb[3 * i..3 * i + 3], &plain.rgb[3 * i..3 * i + 3]);
+                if plain.mask[i] == 0 {
+                    // Every sample sees the room: the mean of its colour along the samples' raw rays.
+                    let mut mean = Vec3::ZERO;
+                    for sy in 0..samples {
+                        for sx in 0..samples {
+                            let at = Vec2::new(
+                                u as f32 + (sx as f32 + 0.5) / samples as f32 - 0.5,
+                                v as f32 + (sy as f32 + 0.5) / samples as f32 - 0.5,
+                            );
+                            mean += Backdrop::Room.colour(&cam.raw_pixel_ray(at)) / 9.0;
+                        }
+                    }
+                    let want = (mean * 255.0).round();
+                    assert_eq!([got[0], got[1], got[2]], want.to_array().map(|c| c as u8));
+                    assert!(want.max_element() > 0.0, "the room is black at {u},{v}");
+                    empty += 1;
+                } else if body == [255; 3] {
+                    assert_eq!(got, body, "a covered pixel changed at {u},{v}");
+                    full += 1;
+                } else {
+                    // Partly covered: the body's share plus some of the room's.
+                    assert!(got.iter().zip(body).all(|(g, b)| g >= b), "{u},{v}");
+                    partial += 1;
+                }
+            }
+        }
+        assert!(
+            empty > 1000 && full > 500 && partial > 50,
+            "{empty} {full} {partial}"
         );
     }
 }
