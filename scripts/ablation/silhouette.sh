@@ -8,6 +8,9 @@
 # area over the true one.
 #
 # The settings compared are EDGES (default "skip train robust"; e.g. EDGES=robust to add one to a table).
+# BACKDROP=room trains on the same bodies rendered in front of a room (`anerf synth --backdrop room`), as a
+# capture's images are, so that a mask's wrong labels cover a backdrop instead of black; every run is still
+# evaluated against the exact subject on black.
 #
 # Usage: silhouette.sh [--preset demo|realistic|realistic-exact] [--noise <px>] [--iterations N]
 #                      [--out <folder>] [--seed N] [-- <extra train flags>]
@@ -16,13 +19,21 @@ NOISE=3
 USAGE_NOISE="PX"
 source "$(dirname "${BASH_SOURCE[0]}")/synthetic_pair.sh"
 
-NOISY="$OUT/subject-masks-$NOISE"
-degraded "$NOISY" --mask-noise "$NOISE"
-# Every run is evaluated against the exact subject's masks (the images are the same).
+BACKDROP="${BACKDROP:-black}"
+TAG=""
+TRAIN_EXACT="$EXACT"
+if [ "$BACKDROP" != black ]; then
+    TAG="-$BACKDROP"
+    TRAIN_EXACT="$OUT/subject-exact$TAG"
+    degraded "$TRAIN_EXACT" --backdrop "$BACKDROP"
+fi
+NOISY="$OUT/subject-masks-$NOISE$TAG"
+degraded "$NOISY" --mask-noise "$NOISE" --backdrop "$BACKDROP"
+# Every run is evaluated against the exact subject's masks and images on black (the bodies are the same).
 EVAL_FLAGS=(--set "dataset.root=$EXACT" --set "dataset.cache=$OUT/cache-$(basename "$EXACT")")
 for edges in ${EDGES:-skip train robust}; do
-    variant "exact-$edges" "$EXACT" --set "train.mask_edges=$edges"
-    variant "masks-$NOISE-$edges" "$NOISY" --set "train.mask_edges=$edges"
+    variant "exact$TAG-$edges" "$TRAIN_EXACT" --set "train.mask_edges=$edges"
+    variant "masks-$NOISE$TAG-$edges" "$NOISY" --set "train.mask_edges=$edges"
 done
 python3 "$ROOT/scripts/ablation/collect.py" --silhouette \
     --title "Mask edges ($PRESET, masks off by ≤ $NOISE px)" "${ROWS[@]}" | tee "$OUT/table.md"

@@ -51,7 +51,7 @@ fn main() {
             let images = sampler
                 .pick_step(&ids, &subject.views, frames, views)
                 .expect("enough frames and views");
-            sampler.sample_step(&subject, &images).expect("rays");
+            sampler.sample_step(&subject, None, &images).expect("rays");
         },
     );
     let (frame, view) = (ids[0], subject.views[0]);
@@ -78,6 +78,7 @@ fn main() {
                     image: &image,
                     mask: &mask,
                     edge: Some(&edge),
+                    background: None,
                 },
                 per_image,
             )

@@ -126,6 +126,7 @@ fn main() {
         image: &small,
         mask: &m,
         edge: None,
+        background: None,
     };
     let t = Instant::now();
     let n = 50;

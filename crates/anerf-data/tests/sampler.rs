@@ -1,17 +1,19 @@
 //! Ray sampling against the reference's masks and boxes (computed by numpy/OpenCV in
 //! `scripts/fixtures/datasets.py`) and its sampling rules.
 
+use anerf_core::geometry::Camera;
 use anerf_core::{FrameId, ViewId};
 use anerf_data::formats::{self, NdArray};
 use anerf_data::prepare::edge_band;
 use anerf_data::prepare::{FrameSelection, ImageScale};
 use anerf_data::sampler::box_mask;
 use anerf_data::{
-    draw_step, image_rays, load_zju_mocap, prepare, LoadOptions, MaskEdges, Prefetch,
-    PrepareOptions, PreparedSubject, RaySampler, SamplerOptions, StepImages, StepPlan,
+    draw_step, image_rays, load_zju_mocap, prepare, BackgroundPlate, Backgrounds, LoadOptions,
+    MaskEdges, Prefetch, PrepareOptions, PreparedSubject, RaySampler, SamplerOptions, StepImages,
+    StepPlan,
 };
 use anerf_testing::fixture;
-use image::GrayImage;
+use image::{GrayImage, Rgb32FImage};
 
 fn npy(rel: &str) -> NdArray {
     formats::read_npy(&fixture(rel)).unwrap()
@@ -32,6 +34,20 @@ fn prepared(cache: &std::path::Path) -> PreparedSubject {
         ..PrepareOptions::default()
     };
     prepare(&subject, &options).unwrap()
+}
+
+/// `view`'s camera, image, mask and prepared band in `frame`.
+fn image_of(
+    p: &PreparedSubject,
+    frame: FrameId,
+    view: ViewId,
+) -> (&Camera, Rgb32FImage, (GrayImage, Vec<bool>)) {
+    let image = p.image(frame, view).unwrap();
+    (
+        &p.cameras[view.0],
+        image,
+        p.mask_and_edge(frame, view).unwrap(),
+    )
 }
 
 #[test]
@@ -106,7 +122,9 @@ fn training_rays_follow_the_reference_scheme() {
         ..SamplerOptions::default()
     };
     let mut sampler = RaySampler::new(11, options.clone());
-    let rays = sampler.sample_prepared(&p, frame, &[view], 500).unwrap();
+    let rays = sampler
+        .sample_prepared(&p, None, frame, &[view], 500)
+        .unwrap();
     assert_eq!(rays.len(), 500);
     let mut on_body = 0;
     for k in 0..rays.len() {
@@ -135,11 +153,8 @@ fn training_rays_follow_the_reference_scheme() {
 #[test]
 fn a_trained_band_is_drawn_with_the_masks_labels_and_marked() {
     let dir = tempfile::tempdir().unwrap();
-    let p = prepared(dir.path());
-    let (frame, view) = (FrameId(1), ViewId(2));
-    let cam = &p.cameras[view.0];
-    let img = p.image(frame, view).unwrap();
-    let (mask, band) = p.mask_and_edge(frame, view).unwrap();
+    let (p, frame, view) = (prepared(dir.path()), FrameId(1), ViewId(2));
+    let (cam, img, (mask, band)) = image_of(&p, frame, view);
     let draw = |mask_edges| {
         let options = SamplerOptions {
             rays: 4000,
@@ -147,7 +162,7 @@ fn a_trained_band_is_drawn_with_the_masks_labels_and_marked() {
             ..SamplerOptions::default()
         };
         RaySampler::new(5, options)
-            .sample_prepared(&p, frame, &[view], 4000)
+            .sample_prepared(&p, None, frame, &[view], 4000)
             .unwrap()
     };
     let rays = draw(MaskEdges::Train);
@@ -169,6 +184,78 @@ fn a_trained_band_is_drawn_with_the_masks_labels_and_marked() {
     assert!(on_band > 10, "{on_band} of 4000 rays on the band");
 }
 
+/// `backdrop` draws no band pixel whose background is unknown; where the camera's background is known a
+/// ray's target is the image whatever the mask says, it carries that background, and in the band it has no
+/// label (the colours decide there); without backgrounds it draws `robust`'s rays.
+#[test]
+fn a_backdrop_band_trains_on_the_image_over_its_background() {
+    let dir = tempfile::tempdir().unwrap();
+    let (p, frame, view) = (prepared(dir.path()), FrameId(1), ViewId(2));
+    let (cam, img, (mask, band)) = image_of(&p, frame, view);
+    // The background wherever one of the two frames leaves a pixel uncovered.
+    let frames = [FrameId(0), frame];
+    let images: Vec<_> = frames.iter().map(|&f| p.image(f, view).unwrap()).collect();
+    let masks: Vec<_> = frames.iter().map(|&f| p.mask(f, view).unwrap()).collect();
+    let plate = BackgroundPlate::estimate(&images, &masks, 0, 1);
+    let backgrounds = Backgrounds::new([(view, plate.clone())]);
+    let draw = |mask_edges, backgrounds| {
+        let options = SamplerOptions {
+            rays: 4000,
+            mask_edges,
+            ..SamplerOptions::default()
+        };
+        RaySampler::new(5, options)
+            .sample_prepared(&p, backgrounds, frame, &[view], 4000)
+            .unwrap()
+    };
+    let robust = draw(MaskEdges::Robust, None);
+    let rays = draw(MaskEdges::Backdrop, Some(&backgrounds));
+    assert_eq!(rays.backgrounds.len(), rays.len());
+    let (mut known_band, mut unknown) = (0, 0);
+    for k in 0..rays.len() {
+        let [u, v] = rays.pixels[k];
+        let i = (v * cam.width + u) as usize;
+        let (behind, in_band) = (plate.at(i), band[i]);
+        let fg = mask.get_pixel(u, v)[0] != 0;
+        let expect = if fg || behind.is_some() {
+            img.get_pixel(u, v).0
+        } else {
+            [0.0; 3]
+        };
+        assert_eq!(rays.colors[k], expect, "target colour of {u},{v}");
+        assert_eq!(
+            rays.backgrounds[k],
+            behind.unwrap_or([0.0; 3]),
+            "background of {u},{v}"
+        );
+        assert_eq!(
+            rays.labelled[k],
+            !(in_band && behind.is_some()),
+            "label of {u},{v}"
+        );
+        assert!(
+            !(in_band && behind.is_none()),
+            "band pixel {u},{v} drawn without a background"
+        );
+        assert!(!rays.edge[k], "band flag of {u},{v}");
+        assert_eq!(rays.foreground[k], fg, "foreground flag of {u},{v}");
+        known_band += usize::from(in_band && behind.is_some());
+        unknown += usize::from(behind.is_none());
+    }
+    assert!(
+        known_band > 5 && unknown > 5,
+        "{known_band} band rays over a known background, {unknown} over none"
+    );
+    // `robust` does draw band pixels without a background.
+    assert!((0..robust.len()).any(|k| {
+        let [u, v] = robust.pixels[k];
+        let i = (v * cam.width + u) as usize;
+        band[i] && plate.at(i).is_none()
+    }));
+    // Without backgrounds it is `robust`.
+    assert_eq!(draw(MaskEdges::Backdrop, None), robust);
+}
+
 #[test]
 fn sampling_is_deterministic_and_resumes_from_serialised_state() {
     let dir = tempfile::tempdir().unwrap();
@@ -183,7 +270,7 @@ fn sampling_is_deterministic_and_resumes_from_serialised_state() {
         (0..n)
             .map(|_| {
                 let images = sampler.pick_step(&frames, &views, 2, 2).unwrap();
-                sampler.sample_step(&p, &images).unwrap()
+                sampler.sample_step(&p, None, &images).unwrap()
             })
             .collect::<Vec<_>>()
     };
@@ -257,7 +344,7 @@ fn several_views_a_step_draw_distinct_views_of_one_frame_split_evenly() {
         assert!(v3.iter().all(|v| views.contains(v)));
         seen.extend(v3[1..].iter().copied());
         // Keep the two streams aligned: the three-view pick drew two more numbers.
-        let rays = three.sample_prepared(&p, f3, &v3, 100).unwrap();
+        let rays = three.sample_prepared(&p, None, f3, &v3, 100).unwrap();
         assert_eq!(rays.len(), 100);
         for (k, range) in [(0, 0..34), (1, 34..67), (2, 67..100)] {
             let centre = p.cameras[v3[k].0].center();
@@ -313,7 +400,7 @@ fn several_frames_a_step_draw_distinct_frames_and_split_the_rays_evenly() {
         assert_eq!(images.len(), 2);
         assert_ne!(images[0].frame, images[1].frame, "frames repeat");
         firsts.insert(images[0].frame);
-        let rays = two.sample_step(&p, &images).unwrap();
+        let rays = two.sample_step(&p, None, &images).unwrap();
         assert_eq!(rays.iter().map(|r| r.len()).collect::<Vec<_>>(), [51, 50]);
         for (step, rays) in images.iter().zip(&rays) {
             // The frame's share, split over its two views: the first view's rays leave its camera.
@@ -345,6 +432,7 @@ fn prefetched_steps_are_the_sequential_draws() {
         views: p.views.clone(),
         frames_per_step: 2,
         views_per_step: 2,
+        backgrounds: None,
     };
     let options = SamplerOptions {
         rays: 64,

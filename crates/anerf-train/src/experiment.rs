@@ -2,6 +2,7 @@
 //! model inputs on the device (uploaded once, then reused).
 
 use std::collections::HashMap;
+use std::sync::Arc;
 
 use anerf_core::geometry::skinning::BoneMatrices;
 use anerf_core::geometry::{Aabb, CanonicalPose, Pose, PoseBasis};
@@ -18,7 +19,8 @@ use crate::progress::PhaseProgress;
 /// A config together with the data it names, ready for training, evaluation or rendering.
 pub struct Experiment {
     pub config: ExperimentConfig,
-    pub prepared: PreparedSubject,
+    /// Shared with the thread that draws the next step's rays ([`anerf_data::Prefetch`]).
+    pub prepared: Arc<PreparedSubject>,
     pub train_frames: Vec<FrameId>,
     pub novel_frames: Vec<FrameId>,
     pub train_views: Vec<ViewId>,
@@ -168,7 +170,7 @@ impl Experiment {
             train_views: d.train_views.iter().map(|&v| ViewId(v)).collect(),
             test_views: test_views.into_iter().map(ViewId).collect(),
             config,
-            prepared,
+            prepared: Arc::new(prepared),
             train_frames,
             novel_frames,
             device,

@@ -24,6 +24,11 @@ pub struct HostRays {
     /// Per ray: its pixel lies in the band around the mask's edge, where masks are least sure (empty when
     /// unknown).
     pub edge: Vec<bool>,
+    /// Per ray: the colour behind the body, which the render is composited over before it meets the
+    /// target (empty: black for every ray).
+    pub backgrounds: Vec<[f32; 3]>,
+    /// Per ray: whether the mask's label trains the ray's opacity (empty: every ray's does).
+    pub labelled: Vec<bool>,
 }
 
 impl HostRays {
@@ -64,6 +69,8 @@ impl HostRays {
         self.pixels.extend(other.pixels);
         self.foreground.extend(other.foreground);
         self.edge.extend(other.edge);
+        self.backgrounds.extend(other.backgrounds);
+        self.labelled.extend(other.labelled);
     }
 
     /// The rays `range` as a new batch (for rendering in chunks).
@@ -76,7 +83,9 @@ impl HostRays {
             colors: known_part(&self.colors, range.clone()),
             pixels: known_part(&self.pixels, range.clone()),
             foreground: known_part(&self.foreground, range.clone()),
-            edge: known_part(&self.edge, range),
+            edge: known_part(&self.edge, range.clone()),
+            backgrounds: known_part(&self.backgrounds, range.clone()),
+            labelled: known_part(&self.labelled, range),
         }
     }
 }
@@ -99,6 +108,10 @@ pub struct RayBatch {
     pub foreground: Option<Tensor<1>>,
     /// `[R]` 1 where the ray's pixel lies in the band around the mask's edge, 0 elsewhere, when known.
     pub edge: Option<Tensor<1>>,
+    /// `[R, 3]` the colour behind the body per ray, when not black.
+    pub backgrounds: Option<Tensor<2>>,
+    /// `[R]` 1 where the mask's label trains the ray's opacity, 0 where it does not, when not every ray's does.
+    pub labelled: Option<Tensor<1>>,
 }
 
 impl RayBatch {
@@ -115,6 +128,9 @@ impl RayBatch {
                 .then(|| from_rows(rays.colors.as_flattened(), n, 3, device)),
             foreground: indicator(&rays.foreground, device),
             edge: indicator(&rays.edge, device),
+            backgrounds: (!rays.backgrounds.is_empty())
+                .then(|| from_rows(rays.backgrounds.as_flattened(), n, 3, device)),
+            labelled: indicator(&rays.labelled, device),
         }
     }
 

@@ -17,8 +17,10 @@ use thiserror::Error;
 use crate::error::DataError;
 use crate::prepare::{edge_band, PreparedSubject};
 
+mod background;
 mod prefetch;
 
+pub use background::{BackgroundPlate, Backgrounds};
 pub use prefetch::{draw_step, DrawError, DrawnStep, Prefetch, StepPlan};
 
 /// What training draws from the band `dilate(mask) − erode(mask)` of a 5×5 kernel around the mask's edge
@@ -36,6 +38,14 @@ pub enum MaskEdges {
     Robust,
     /// Never drawn (the reference): the mask's errors are not learned, and the edge is not trained either.
     Skip,
+    /// Drawn like every pixel against the image over its camera's static background, estimated from the
+    /// training frames ([`Backgrounds`]): where the background is known, every ray's target is the image
+    /// itself and the render is composited over the background ([`HostRays::backgrounds`]), and a band ray
+    /// carries no mask label ([`HostRays::labelled`]), so the colours decide where the body ends, as a
+    /// partly covered pixel's colour says how much of it the body covers. Band pixels whose background is
+    /// not known are not drawn; without any backgrounds, as `Robust`. For captures, whose cameras stand
+    /// still.
+    Backdrop,
 }
 
 impl MaskEdges {
@@ -48,7 +58,7 @@ impl MaskEdges {
         impl serde::de::Visitor<'_> for Either {
             type Value = MaskEdges;
             fn expecting(&self, f: &mut std::fmt::Formatter) -> std::fmt::Result {
-                f.write_str(r#""skip", "train" or "robust""#)
+                f.write_str(r#""skip", "train", "robust" or "backdrop""#)
             }
             fn visit_bool<E: serde::de::Error>(self, skip: bool) -> Result<MaskEdges, E> {
                 Ok(if skip {
@@ -62,6 +72,7 @@ impl MaskEdges {
                     "skip" => Ok(MaskEdges::Skip),
                     "train" => Ok(MaskEdges::Train),
                     "robust" => Ok(MaskEdges::Robust),
+                    "backdrop" => Ok(MaskEdges::Backdrop),
                     _ => Err(E::invalid_value(serde::de::Unexpected::Str(name), &self)),
                 }
             }
@@ -132,6 +143,8 @@ pub struct ImageView<'a> {
     /// The mask-edge band (row-major), as prepared from the full-resolution mask; `None`: computed from
     /// `mask` at this resolution.
     pub edge: Option<&'a [bool]>,
+    /// The camera's static background, under [`MaskEdges::Backdrop`].
+    pub background: Option<&'a BackgroundPlate>,
 }
 
 /// One image set of a training step: a frame and the views its rays are drawn from.
@@ -205,8 +218,14 @@ impl RaySampler {
     ) -> Result<HostRays, SamplerError> {
         let w = view.camera.width;
         let on_body: &[u8] = view.mask.as_raw();
+        let background = view
+            .background
+            .filter(|_| self.options.mask_edges == MaskEdges::Backdrop);
+        let behind = |i: usize| background.and_then(|b| b.at(i));
+        // The image where the mask says body or the background is known (the render is composited over
+        // it), black elsewhere.
         let gt = |i: usize| -> [f32; 3] {
-            if on_body[i] != 0 {
+            if on_body[i] != 0 || behind(i).is_some() {
                 view.image.as_raw()[3 * i..3 * i + 3]
                     .try_into()
                     .expect("3 channels")
@@ -245,7 +264,14 @@ impl RaySampler {
                     let i = i as usize;
                     push_ray(&mut out, &ray, hit.near, hit.far, gt(i), [u, v]);
                     out.foreground.push(on_body[i] != 0);
-                    out.edge.push(band[i]);
+                    match (background, behind(i)) {
+                        (None, _) => out.edge.push(band[i]),
+                        (Some(_), known) => {
+                            out.edge.push(band[i] && known.is_none());
+                            out.labelled.push(!band[i] || known.is_none());
+                            out.backgrounds.push(known.unwrap_or([0.0; 3]));
+                        }
+                    }
                 }
             }
         }
@@ -285,6 +311,7 @@ impl RaySampler {
     pub fn sample_step(
         &mut self,
         subject: &PreparedSubject,
+        backgrounds: Option<&Backgrounds>,
         images: &[StepImages],
     ) -> Result<Vec<HostRays>, SamplerError> {
         let total = self.options.rays;
@@ -299,19 +326,21 @@ impl RaySampler {
                 )
             })
             .collect();
-        self.sample_frames(subject, &shares)
+        self.sample_frames(subject, backgrounds, &shares)
     }
 
     /// Reads `views` of one frame of a prepared subject and draws `rays` rays from them, split as evenly
-    /// as whole rays allow (the first views take the remainder), concatenated view after view.
+    /// as whole rays allow (the first views take the remainder), concatenated view after view; under
+    /// [`MaskEdges::Backdrop`], over the views' `backgrounds`.
     pub fn sample_prepared(
         &mut self,
         subject: &PreparedSubject,
+        backgrounds: Option<&Backgrounds>,
         frame: FrameId,
         views: &[ViewId],
         rays: usize,
     ) -> Result<HostRays, SamplerError> {
-        let mut rays = self.sample_frames(subject, &[(frame, views, rays)])?;
+        let mut rays = self.sample_frames(subject, backgrounds, &[(frame, views, rays)])?;
         Ok(rays.pop().expect("one frame"))
     }
 
@@ -321,6 +350,7 @@ impl RaySampler {
     fn sample_frames(
         &mut self,
         subject: &PreparedSubject,
+        backgrounds: Option<&Backgrounds>,
         shares: &[(FrameId, &[ViewId], usize)],
     ) -> Result<Vec<HostRays>, SamplerError> {
         let mut jobs = Vec::new();
@@ -339,13 +369,14 @@ impl RaySampler {
         let read: Vec<ReadImage> = jobs
             .par_iter()
             .map(|&(frame, view, bounds, _)| {
-                ReadImage::new(subject, frame, view, bounds, mask_edges)
+                let background = backgrounds.and_then(|b| b.plate(view));
+                ReadImage::new(subject, frame, view, bounds, mask_edges, background)
             })
             .collect::<Result<_, _>>()?;
-        let mut drawn = read
-            .iter()
-            .zip(&jobs)
-            .map(|(image, job)| self.draw(&image.view(subject), &image.edge, &image.pools, job.3));
+        let mut drawn = read.iter().zip(&jobs).map(|(image, job)| {
+            let view = image.view(subject, backgrounds);
+            self.draw(&view, &image.edge, &image.pools, job.3)
+        });
         shares
             .iter()
             .map(|(_, views, _)| {
@@ -370,11 +401,17 @@ struct Pools {
 impl Pools {
     fn new(view: &ImageView, band: &[bool], mask_edges: MaskEdges) -> Result<Self, SamplerError> {
         let bound = box_mask(view.camera, view.bounds);
-        let skip = mask_edges == MaskEdges::Skip;
+        // Band pixels that are never drawn: all under `Skip`; under `Backdrop`, those whose background
+        // is not known (their colour mixes the body with a backdrop nothing tells, their label is as unsure).
+        let skipped = |i: usize| match (mask_edges, view.background) {
+            (MaskEdges::Skip, _) => true,
+            (MaskEdges::Backdrop, Some(plate)) => plate.at(i).is_none(),
+            _ => false,
+        };
         let on_body: &[u8] = view.mask.as_raw();
         let (mut body, mut boxed) = (Vec::new(), Vec::new());
         for (i, (&inside, &edge)) in bound.iter().zip(band).enumerate() {
-            if inside && !(skip && edge) {
+            if inside && !(edge && skipped(i)) {
                 boxed.push(i as u32);
                 if on_body[i] != 0 {
                     body.push(i as u32);
@@ -405,6 +442,7 @@ impl ReadImage {
         view: ViewId,
         bounds: Aabb,
         mask_edges: MaskEdges,
+        background: Option<&BackgroundPlate>,
     ) -> Result<Self, SamplerError> {
         let image = subject.image(frame, view)?;
         let (mask, edge) = subject.mask_and_edge(frame, view)?;
@@ -415,6 +453,7 @@ impl ReadImage {
             image: &image,
             mask: &mask,
             edge: Some(&edge),
+            background,
         };
         check_sizes(&view_of)?;
         let pools = Pools::new(&view_of, &edge, mask_edges)?;
@@ -428,13 +467,18 @@ impl ReadImage {
         })
     }
 
-    fn view<'a>(&'a self, subject: &'a PreparedSubject) -> ImageView<'a> {
+    fn view<'a>(
+        &'a self,
+        subject: &'a PreparedSubject,
+        backgrounds: Option<&'a Backgrounds>,
+    ) -> ImageView<'a> {
         ImageView {
             camera: &subject.cameras[self.view.0],
             bounds: &self.bounds,
             image: &self.image,
             mask: &self.mask,
             edge: Some(&self.edge),
+            background: backgrounds.and_then(|b| b.plate(self.view)),
         }
     }
 }
@@ -631,6 +675,7 @@ pub fn image_rays(
                 image: img,
                 mask,
                 edge: None,
+                background: None,
             })?;
             let bound = box_mask(camera, bounds);
             let mut gt = img.clone();

@@ -10,17 +10,18 @@ use std::thread::JoinHandle;
 use anerf_core::render::HostRays;
 use anerf_core::{FrameId, ViewId};
 
-use super::{RaySampler, SamplerError, StepImages};
+use super::{Backgrounds, RaySampler, SamplerError, StepImages};
 use crate::prepare::PreparedSubject;
 
-/// What a step draws from besides the sampler's state: the training frames and views, and how many of
-/// each a step takes ([`RaySampler::pick_step`]).
-#[derive(Debug, Clone, PartialEq, Eq)]
+/// What a step draws from besides the sampler's state: the training frames and views, how many of each
+/// a step takes ([`RaySampler::pick_step`]), and the views' backgrounds where training composites over them.
+#[derive(Debug, Clone, PartialEq)]
 pub struct StepPlan {
     pub frames: Vec<FrameId>,
     pub views: Vec<ViewId>,
     pub frames_per_step: usize,
     pub views_per_step: usize,
+    pub backgrounds: Option<Arc<Backgrounds>>,
 }
 
 /// One step's images and rays (one [`HostRays`] a frame), and the sampler as drawing them left it.
@@ -35,14 +36,10 @@ pub struct DrawnStep {
 #[derive(Debug, thiserror::Error)]
 pub enum DrawError {
     #[error(
-        "no step can be drawn: {frames} frames, {views} views, {frames_per_step} frames and {views_per_step} views a step"
+        "no step can be drawn: {} frames, {} views, {} frames and {} views a step",
+        .0.frames.len(), .0.views.len(), .0.frames_per_step, .0.views_per_step
     )]
-    Plan {
-        frames: usize,
-        views: usize,
-        frames_per_step: usize,
-        views_per_step: usize,
-    },
+    Plan(StepPlan),
     #[error("sampling rays of {images:?}: {source}")]
     Sample {
         images: Vec<StepImages>,
@@ -63,13 +60,8 @@ pub fn draw_step(
             plan.frames_per_step,
             plan.views_per_step,
         )
-        .ok_or(DrawError::Plan {
-            frames: plan.frames.len(),
-            views: plan.views.len(),
-            frames_per_step: plan.frames_per_step,
-            views_per_step: plan.views_per_step,
-        })?;
-    match sampler.sample_step(subject, &images) {
+        .ok_or_else(|| DrawError::Plan(plan.clone()))?;
+    match sampler.sample_step(subject, plan.backgrounds.as_deref(), &images) {
         Ok(rays) => Ok(DrawnStep {
             images,
             rays,

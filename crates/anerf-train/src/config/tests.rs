@@ -168,7 +168,7 @@ fn errors_name_the_key_and_the_allowed_values() {
         .unwrap_err()
         .to_string();
     assert!(
-        err.contains("sometimes") && err.contains(r#""skip", "train" or "robust""#),
+        err.contains("sometimes") && err.contains(r#""skip", "train", "robust" or "backdrop""#),
         "{err}"
     );
     for scale in ["0", "-0.1", "nan"] {

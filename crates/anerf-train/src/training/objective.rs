@@ -44,8 +44,13 @@ impl TermSums {
         consistency: ConsistencyLoss,
     ) -> Self {
         let target = rays.colors.clone().expect("training rays carry colours");
-        let silhouette = rays.foreground.as_ref().map(|m| (&out.acc, m));
-        let mut data = RayErrors::new(out.rgb.clone(), target, silhouette, rays.edge.as_ref(), cfg);
+        let rgb = over_backgrounds(out.rgb.clone(), &out.acc, rays.backgrounds.as_ref());
+        let silhouette = rays.foreground.as_ref().map(|m| Silhouette {
+            acc: &out.acc,
+            label: m,
+            labelled: rays.labelled.as_ref(),
+        });
+        let mut data = RayErrors::new(rgb, target, silhouette, rays.edge.as_ref(), cfg);
         if cfg.hard_surface_weight > 0.0 {
             data.add_hard_surface(&out.alpha, cfg.hard_surface_weight);
         }
@@ -238,6 +243,26 @@ impl Stage2Objective<'_> {
     }
 }
 
+/// `C + (1 − acc)·B`: the rays' colours on black `rgb` `[R, 3]` over the colours behind them `backgrounds`
+/// `[R, 3]` (unchanged without), given their opacity `acc` `[R]`.
+fn over_backgrounds(rgb: Tensor<2>, acc: &Tensor<1>, backgrounds: Option<&Tensor<2>>) -> Tensor<2> {
+    match backgrounds {
+        Some(b) => {
+            let n = acc.dims()[0];
+            rgb + b.clone() * (acc.clone().neg() + 1.0).reshape([n, 1])
+        }
+        None => rgb,
+    }
+}
+
+/// The rays' rendered opacity `acc` `[R]` against their mask labels `[R]`, on the rays `labelled` marks
+/// (all where absent).
+struct Silhouette<'a> {
+    acc: &'a Tensor<1>,
+    label: &'a Tensor<1>,
+    labelled: Option<&'a Tensor<1>>,
+}
+
 /// The data terms of a shard's rays, as sums over its rays.
 struct RayErrors {
     rays: usize,
@@ -251,25 +276,30 @@ struct RayErrors {
 }
 
 impl RayErrors {
-    /// `rgb`, `target`: `[R, 3]`; `silhouette`: the rays' rendered opacity and mask labels `[R]`, where
-    /// known; `edge`: `[R]` 1 on band rays, where known.
+    /// `rgb`, `target`: `[R, 3]`; `silhouette`: the rays' opacity against their labels, where known;
+    /// `edge`: `[R]` 1 on band rays, where known.
     fn new(
         rgb: Tensor<2>,
         target: Tensor<2>,
-        silhouette: Option<(&Tensor<1>, &Tensor<1>)>,
+        silhouette: Option<Silhouette>,
         edge: Option<&Tensor<1>>,
         cfg: &StageConfig,
     ) -> Self {
         let n = rgb.dims()[0];
         let colour = (rgb - target).powf_scalar(2.0).sum_dim(1).reshape([n]) / 3.0;
         let per_ray = match (silhouette, cfg.mask_weight > 0.0) {
-            (Some((acc, mask)), true) => {
-                colour.clone() + (acc.clone() - mask.clone()).powf_scalar(2.0) * cfg.mask_weight
+            (Some(s), true) => {
+                let miss = (s.acc.clone() - s.label.clone()).powf_scalar(2.0) * cfg.mask_weight;
+                let miss = match s.labelled {
+                    Some(labelled) => miss * labelled.clone(),
+                    None => miss,
+                };
+                colour.clone() + miss
             }
             _ => colour.clone(),
         };
         let loss = match (edge, cfg.mask_edges) {
-            (Some(edge), MaskEdges::Robust) => {
+            (Some(edge), MaskEdges::Robust | MaskEdges::Backdrop) => {
                 let c2 = cfg.edge_scale * cfg.edge_scale;
                 let robust = ((per_ray.clone() / c2 + 1.0).sqrt() - 1.0) * (2.0 * c2);
                 per_ray.clone() + (robust - per_ray) * edge.clone()
@@ -303,7 +333,9 @@ mod tests {
     /// The data loss against its definition, worked here in f64: each ray's error `e` is its mean squared
     /// colour error plus `mask_weight · (acc − m)²`; under `robust` a band ray's loss is the pseudo-Huber
     /// `2c²(√(1 + e/c²) − 1)` of it, so its opacity's gradient is `2 · mask_weight · (acc − m) / √(1 + e/c²)`;
-    /// under `train` the band flags change nothing.
+    /// under `train` the band flags change nothing; under `backdrop` a band ray whose background is known
+    /// carries no label (`labelled` 0, `edge` 0) and one whose background is not is weighed as under
+    /// `robust`.
     #[test]
     fn band_rays_weigh_their_error_by_the_pseudo_huber_under_robust() {
         let rgb = [
@@ -320,19 +352,26 @@ mod tests {
         ];
         let acc = [0.2f32, 0.9, 1.0, 0.05];
         let foreground = [false, true, false, false];
-        let edge = [false, true, true, true];
-        let host = HostRays {
-            near: vec![1.0; 4],
-            far: vec![2.0; 4],
-            origins: vec![[0.0; 3]; 4],
-            directions: vec![[0.0, 0.0, 1.0]; 4],
-            colors: target.to_vec(),
-            pixels: vec![[0, 0]; 4],
-            foreground: foreground.to_vec(),
-            edge: edge.to_vec(),
-        };
+        let band = [false, true, true, true];
         let device = cpu_device().autodiff();
-        for edges in ["robust", "train"] {
+        for edges in ["robust", "train", "backdrop"] {
+            // Under `backdrop`, ray 1's background is known and rays 2 and 3's are not.
+            let (edge, labelled) = match edges {
+                "backdrop" => ([false, false, true, true], vec![true, false, true, true]),
+                _ => (band, Vec::new()),
+            };
+            let host = HostRays {
+                near: vec![1.0; 4],
+                far: vec![2.0; 4],
+                origins: vec![[0.0; 3]; 4],
+                directions: vec![[0.0, 0.0, 1.0]; 4],
+                colors: target.to_vec(),
+                pixels: vec![[0, 0]; 4],
+                foreground: foreground.to_vec(),
+                edge: edge.to_vec(),
+                backgrounds: Vec::new(),
+                labelled: labelled.clone(),
+            };
             let set = [
                 "train.mask_weight=0.1".to_string(),
                 "train.edge_scale=0.2".to_string(),
@@ -346,7 +385,11 @@ mod tests {
             let errors = RayErrors::new(
                 from_rows(rgb.as_flattened(), 4, 3, &device),
                 rays.colors.clone().unwrap(),
-                Some((&opacity, rays.foreground.as_ref().unwrap())),
+                Some(Silhouette {
+                    acc: &opacity,
+                    label: rays.foreground.as_ref().unwrap(),
+                    labelled: rays.labelled.as_ref(),
+                }),
                 rays.edge.as_ref(),
                 &cfg,
             );
@@ -358,10 +401,12 @@ mod tests {
                     .map(|k| (rgb[r][k] as f64 - target[r][k] as f64).powi(2))
                     .sum::<f64>()
                     / 3.0;
-                let miss = acc[r] as f64 - f64::from(u8::from(foreground[r]));
+                let trained = labelled.get(r).copied().unwrap_or(true);
+                let miss = f64::from(u8::from(trained))
+                    * (acc[r] as f64 - f64::from(u8::from(foreground[r])));
                 let e = squared + w * miss * miss;
                 colour += squared;
-                let slope = if edges == "robust" && edge[r] {
+                let slope = if edges != "train" && edge[r] {
                     loss += 2.0 * c * c * ((1.0 + e / (c * c)).sqrt() - 1.0);
                     1.0 / (1.0 + e / (c * c)).sqrt()
                 } else {
@@ -388,6 +433,49 @@ mod tests {
                 Tolerance::Relative(1e-4),
             );
         }
+    }
+
+    /// `C + (1 − acc)·B` per ray and channel, and its gradient in the opacity, `−Σ_c g_c B_c`.
+    #[test]
+    fn renders_are_composited_over_the_rays_backgrounds() {
+        let device = cpu_device().autodiff();
+        let rgb = [[0.2f32, 0.1, 0.0], [0.5, 0.5, 0.5], [0.0, 0.0, 0.0]];
+        let acc = [0.25f32, 1.0, 0.0];
+        let b = [[0.4f32, 0.8, 0.2], [0.9, 0.9, 0.9], [0.3, 0.6, 0.1]];
+        let g = [[1.0f32, -2.0, 0.5], [0.3, 0.3, 0.3], [-1.0, 1.0, 2.0]];
+        let opacity = Tensor::<1>::from_floats(acc, &device).require_grad();
+        let backgrounds = from_rows(b.as_flattened(), 3, 3, &device);
+        let out = over_backgrounds(
+            from_rows(rgb.as_flattened(), 3, 3, &device),
+            &opacity,
+            Some(&backgrounds),
+        );
+        let want: Vec<f32> = (0..9)
+            .map(|i| rgb[i / 3][i % 3] + (1.0 - acc[i / 3]) * b[i / 3][i % 3])
+            .collect();
+        assert_close(
+            "composited",
+            &to_host(out.clone()),
+            &want,
+            Tolerance::Absolute(1e-6),
+        );
+        let grads = (out * from_rows(g.as_flattened(), 3, 3, &device))
+            .sum()
+            .backward();
+        let want: Vec<f32> = (0..3)
+            .map(|r| -(0..3).map(|c| g[r][c] * b[r][c]).sum::<f32>())
+            .collect();
+        assert_close(
+            "opacity gradient",
+            &to_host(opacity.grad(&grads).unwrap()),
+            &want,
+            Tolerance::Absolute(1e-6),
+        );
+        let plain = from_rows(rgb.as_flattened(), 3, 3, &device);
+        assert_eq!(
+            to_host(over_backgrounds(plain.clone(), &opacity, None)),
+            to_host(plain)
+        );
     }
 
     /// The hard-surface prior against its definition in f64: `weight · Σ_r Σ_k α_rk (1 − α_rk)` with

@@ -8,7 +8,7 @@ use anerf_core::model::{AnimatableNerf, FrameCode, FrameInputs};
 use anerf_core::render::{psnr_from_mse, HostRays, RayBatch};
 use anerf_core::tensor::{from_rows, to_host};
 use anerf_core::FrameId;
-use anerf_data::{Prefetch, RaySampler, SamplerOptions, StepPlan};
+use anerf_data::{Backgrounds, MaskEdges, Prefetch, RaySampler, SamplerOptions, StepPlan};
 use anerf_eval::images::{write_png, PngDepth};
 use anerf_eval::ImageMetrics;
 use anyhow::{bail, Context, Result};
@@ -51,7 +51,7 @@ pub fn train_stage1(
     };
     let devices = exp.data_parallel().map(<[Device]>::to_vec);
     let record = Record::open(run, Stage::Train, state.counters.step)?;
-    let mut step = Stage1::new(exp, &cfg, state, record);
+    let mut step = Stage1::new(exp, &cfg, state, record)?;
     let (model, outcome) = match devices {
         None => drive(&mut step, Single::new(model, optim), &cfg, options, stop)?,
         Some(devices) => {
@@ -178,25 +178,36 @@ struct Stage1<'a> {
 }
 
 impl<'a> Stage1<'a> {
+    /// The step, with the training views' backgrounds estimated from the training frames where
+    /// `mask_edges = "backdrop"` composites over them.
     fn new(
         exp: &'a mut Experiment,
         cfg: &'a StageConfig,
         state: TrainerState,
         record: Record<'a>,
-    ) -> Self {
+    ) -> Result<Self> {
+        let backgrounds = match cfg.mask_edges {
+            MaskEdges::Backdrop => Some(Arc::new(
+                Backgrounds::estimate(&exp.prepared, &exp.train_frames, &exp.train_views).context(
+                    "estimating the training views' backgrounds (train.mask_edges = \"backdrop\")",
+                )?,
+            )),
+            _ => None,
+        };
         let plan = StepPlan {
             frames: exp.train_frames.clone(),
             views: exp.train_views.clone(),
             frames_per_step: cfg.frames_per_step,
             views_per_step: cfg.views_per_step.min(exp.train_views.len()),
+            backgrounds,
         };
-        Self {
-            prefetch: Prefetch::new(Arc::new(exp.prepared.clone()), plan),
+        Ok(Self {
+            prefetch: Prefetch::new(Arc::clone(&exp.prepared), plan),
             exp,
             cfg,
             state,
             record,
-        }
+        })
     }
 }
 
@@ -518,7 +529,7 @@ mod tests {
     ) -> (AnimatableNerf, Stage1<'a>) {
         let (model, state) = fresh_start(exp, cfg);
         let record = Record::open(run, Stage::Train, 0).unwrap();
-        (model, Stage1::new(exp, cfg, state, record))
+        (model, Stage1::new(exp, cfg, state, record).unwrap())
     }
 
     /// Each of `count` shards' logged values and parameter gradients for `batch`.

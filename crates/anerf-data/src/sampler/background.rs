@@ -1,0 +1,262 @@
+//! The static background of each training camera, estimated from its own frames: a capture's cameras stand
+//! still while the person moves, so every pixel shows the backdrop in most frames. Training against the
+//! image composited over it ([`super::MaskEdges::Backdrop`]) lets the colours say where the body ends,
+//! instead of the masks, which are least sure exactly there.
+
+use std::collections::HashMap;
+
+use anerf_core::{FrameId, ViewId};
+use image::{GrayImage, Rgb32FImage};
+use rayon::prelude::*;
+
+use crate::error::DataError;
+use crate::prepare::PreparedSubject;
+
+/// At most this many of the training frames, evenly spaced, are read per camera.
+const MAX_FRAMES: usize = 64;
+/// A pixel's background is known where at least this many of the frames read leave it uncovered (the
+/// median then outvotes a frame whose mask misses a part of the body there).
+const MIN_FRAMES: usize = 3;
+/// Each mask is dilated by this many pixels (or 0.75 % of the image's larger side, if more) before its
+/// uncovered pixels count: a mask's edge is off by a few pixels, and an edge pixel mixes body and backdrop.
+const MARGIN_PX: u32 = 4;
+
+/// One camera's background at the working resolution: per pixel the median colour (channels in
+/// `[0, 1]`) over the frames whose dilated mask leaves it uncovered, or unknown where too few do.
+#[derive(Debug, Clone, PartialEq)]
+pub struct BackgroundPlate {
+    pub width: u32,
+    pub height: u32,
+    /// Row-major colours; black where unknown.
+    colours: Vec<[f32; 3]>,
+    known: Vec<bool>,
+}
+
+impl BackgroundPlate {
+    /// The median of each pixel's colours over the frames whose mask, dilated by `margin` pixels, leaves
+    /// it uncovered; known where at least `min_frames` frames do. `images` and `masks`: one per frame, at
+    /// least one, all of one size.
+    pub fn estimate(
+        images: &[Rgb32FImage],
+        masks: &[GrayImage],
+        margin: u32,
+        min_frames: usize,
+    ) -> Self {
+        assert!(!images.is_empty(), "a background needs at least one frame");
+        let (width, height) = images[0].dimensions();
+        assert!(
+            images.len() == masks.len()
+                && images.iter().all(|i| i.dimensions() == (width, height))
+                && masks.iter().all(|m| m.dimensions() == (width, height)),
+            "a background's images and masks are one per frame, all {width}×{height}"
+        );
+        let uncovered: Vec<Vec<bool>> = masks
+            .par_iter()
+            .map(|m| dilate(m, margin).into_iter().map(|b| !b).collect())
+            .collect();
+        let n = (width * height) as usize;
+        let (colours, known) = (0..n)
+            .into_par_iter()
+            .map_init(Vec::new, |values: &mut Vec<[f32; 3]>, i| {
+                values.clear();
+                for (image, free) in images.iter().zip(&uncovered) {
+                    if free[i] {
+                        let p = &image.as_raw()[3 * i..3 * i + 3];
+                        values.push([p[0], p[1], p[2]]);
+                    }
+                }
+                if values.len() < min_frames.max(1) {
+                    return ([0.0; 3], false);
+                }
+                let mut median = [0.0; 3];
+                for (c, m) in median.iter_mut().enumerate() {
+                    let mut channel: Vec<f32> = values.iter().map(|v| v[c]).collect();
+                    let mid = channel.len() / 2;
+                    *m = *channel.select_nth_unstable_by(mid, f32::total_cmp).1;
+                }
+                (median, true)
+            })
+            .unzip();
+        Self {
+            width,
+            height,
+            colours,
+            known,
+        }
+    }
+
+    /// The background of pixel `i` (row-major), where known.
+    pub fn at(&self, i: usize) -> Option<[f32; 3]> {
+        self.known[i].then(|| self.colours[i])
+    }
+
+    /// The share of the pixels whose background is known.
+    pub fn known_share(&self) -> f32 {
+        self.known.iter().filter(|&&k| k).count() as f32 / self.known.len().max(1) as f32
+    }
+}
+
+/// The estimated backgrounds of a run's training cameras.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct Backgrounds {
+    plates: HashMap<ViewId, BackgroundPlate>,
+}
+
+impl Backgrounds {
+    /// Estimates each of `views`' backgrounds from at most [`MAX_FRAMES`] of `frames` (evenly spaced) of
+    /// `subject`, as [`BackgroundPlate::estimate`] does.
+    pub fn estimate(
+        subject: &PreparedSubject,
+        frames: &[FrameId],
+        views: &[ViewId],
+    ) -> Result<Self, DataError> {
+        let step = frames.len().div_ceil(MAX_FRAMES).max(1);
+        let used: Vec<FrameId> = frames.iter().copied().step_by(step).collect();
+        let mut plates = HashMap::new();
+        for &view in views {
+            let read: Vec<(Rgb32FImage, GrayImage)> = used
+                .par_iter()
+                .map(|&f| Ok((subject.image(f, view)?, subject.mask(f, view)?)))
+                .collect::<Result<_, DataError>>()?;
+            let (images, masks): (Vec<_>, Vec<_>) = read.into_iter().unzip();
+            let Some(first) = images.first() else {
+                continue;
+            };
+            let margin = MARGIN_PX.max(first.width().max(first.height()) * 3 / 400);
+            plates.insert(
+                view,
+                BackgroundPlate::estimate(&images, &masks, margin, MIN_FRAMES),
+            );
+        }
+        Ok(Self { plates })
+    }
+
+    /// Backgrounds made elsewhere, one per camera.
+    pub fn new(plates: impl IntoIterator<Item = (ViewId, BackgroundPlate)>) -> Self {
+        Self {
+            plates: plates.into_iter().collect(),
+        }
+    }
+
+    /// Camera `view`'s background, if estimated.
+    pub fn plate(&self, view: ViewId) -> Option<&BackgroundPlate> {
+        self.plates.get(&view)
+    }
+}
+
+/// `mask` (non-zero = set) dilated by a square of half-side `r` pixels, row-major: a running maximum
+/// along the rows, then along the columns.
+fn dilate(mask: &GrayImage, r: u32) -> Vec<bool> {
+    let (w, h) = (mask.width() as usize, mask.height() as usize);
+    let r = r as usize;
+    let set: Vec<bool> = mask.as_raw().iter().map(|&v| v != 0).collect();
+    let spread = |line: &[bool]| -> Vec<bool> {
+        // The distance to the nearest set pixel on the left and on the right, in one pass each way.
+        let n = line.len();
+        let mut out = vec![false; n];
+        let mut last = None;
+        for (i, &s) in line.iter().enumerate() {
+            if s {
+                last = Some(i);
+            }
+            out[i] = last.is_some_and(|l| i - l <= r);
+        }
+        last = None;
+        for i in (0..n).rev() {
+            if line[i] {
+                last = Some(i);
+            }
+            out[i] |= last.is_some_and(|l| l - i <= r);
+        }
+        out
+    };
+    let rows: Vec<bool> = set.chunks(w).flat_map(spread).collect();
+    let mut out = vec![false; w * h];
+    for x in 0..w {
+        let column: Vec<bool> = (0..h).map(|y| rows[y * w + x]).collect();
+        for (y, v) in spread(&column).into_iter().enumerate() {
+            out[y * w + x] = v;
+        }
+    }
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn dilation_is_the_square_neighbourhood_by_brute_force() {
+        let (w, h) = (23u32, 17u32);
+        let mask = GrayImage::from_fn(w, h, |x, y| {
+            image::Luma([u8::from((x * 7 + y * 13) % 29 == 0 || (x == 0 && y == 16))])
+        });
+        for r in [0, 1, 2, 5] {
+            let got = dilate(&mask, r);
+            for y in 0..h as i64 {
+                for x in 0..w as i64 {
+                    let r = r as i64;
+                    let want = (-r..=r).any(|dy| {
+                        (-r..=r).any(|dx| {
+                            let (u, v) = (x + dx, y + dy);
+                            (0..w as i64).contains(&u)
+                                && (0..h as i64).contains(&v)
+                                && mask.get_pixel(u as u32, v as u32)[0] != 0
+                        })
+                    });
+                    assert_eq!(got[(y * w as i64 + x) as usize], want, "r {r} at {x},{y}");
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn the_plate_is_each_pixels_median_over_the_frames_that_leave_it_uncovered() {
+        // A 6 × 1 strip over 5 frames: a "body" (mask 1, colour 0.9) moves along it over a backdrop
+        // whose pixel x has colour x / 10 with a little per-frame noise.
+        let (w, frames) = (6u32, 5usize);
+        let noise = [0.0, 0.01, -0.01, 0.02, -0.02];
+        let body_at = [0usize, 1, 2, 3, 5];
+        let images: Vec<Rgb32FImage> = (0..frames)
+            .map(|f| {
+                Rgb32FImage::from_fn(w, 1, |x, _| {
+                    let v = if x as usize == body_at[f] {
+                        0.9
+                    } else {
+                        x as f32 / 10.0 + noise[f]
+                    };
+                    image::Rgb([v, v, v])
+                })
+            })
+            .collect();
+        let masks: Vec<GrayImage> = (0..frames)
+            .map(|f| {
+                GrayImage::from_fn(w, 1, |x, _| {
+                    image::Luma([u8::from(x as usize == body_at[f])])
+                })
+            })
+            .collect();
+        // Without a margin: each pixel is covered in one frame at most, so four or five values remain.
+        let plate = BackgroundPlate::estimate(&images, &masks, 0, 3);
+        for x in 0..w as usize {
+            let mut values: Vec<f32> = (0..frames)
+                .filter(|&f| body_at[f] != x)
+                .map(|f| x as f32 / 10.0 + noise[f])
+                .collect();
+            values.sort_by(f32::total_cmp);
+            let want = values[values.len() / 2];
+            assert_eq!(plate.at(x), Some([want; 3]), "pixel {x}");
+        }
+        // With a margin of 1, pixels 1 and 2 are left uncovered by two frames only (3, 4 and 0, 4), the
+        // others by three or four.
+        let plate = BackgroundPlate::estimate(&images, &masks, 1, 3);
+        assert_eq!((plate.at(1), plate.at(2)), (None, None));
+        // Pixel 4 from frames 0, 1, 2: 0.4, 0.41 and 0.39, whose median is frame 0's.
+        assert_eq!(plate.at(4), Some([4.0 / 10.0 + noise[0]; 3]));
+        assert!(
+            (plate.known_share() - 4.0 / 6.0).abs() < 1e-6,
+            "{}",
+            plate.known_share()
+        );
+    }
+}
