@@ -20,6 +20,10 @@ const MIN_FRAMES: usize = 3;
 /// Each mask is dilated by this many pixels (or 0.75 % of the image's larger side, if more) before its
 /// uncovered pixels count: a mask's edge is off by a few pixels, and an edge pixel mixes body and backdrop.
 const MARGIN_PX: u32 = 4;
+/// Unknown pixels within this many margins of a known one take its colour ([`BackgroundPlate::filled`]): a
+/// subject that stays in place hides the pixels next to its body in nearly every frame, a third of the
+/// band around its silhouette on the demo subject, and the backdrop there is mostly the backdrop beside it.
+const FILL_MARGINS: u32 = 2;
 
 /// One camera's background at the working resolution: per pixel the median colour (channels in
 /// `[0, 1]`) over the frames whose dilated mask leaves it uncovered, or unknown where too few do.
@@ -85,6 +89,40 @@ impl BackgroundPlate {
         }
     }
 
+    /// The plate with each unknown pixel within `radius` pixels (Euclidean) of a known one given the
+    /// colour of the nearest (the first in row-major order of the offsets among equally near ones), and
+    /// counted as known; the rest stays unknown. Only pixels known before the fill are copied from.
+    pub fn filled(self, radius: u32) -> Self {
+        let r = radius as i64;
+        let mut offsets: Vec<(i64, i64)> = (-r..=r)
+            .flat_map(|dy| (-r..=r).map(move |dx| (dy, dx)))
+            .filter(|&(dy, dx)| dy * dy + dx * dx <= r * r)
+            .collect();
+        offsets.sort_by_key(|&(dy, dx)| dy * dy + dx * dx);
+        let (w, h) = (self.width as i64, self.height as i64);
+        let (colours, known) = (0..self.known.len())
+            .into_par_iter()
+            .map(|i| {
+                if self.known[i] {
+                    return (self.colours[i], true);
+                }
+                let (x, y) = (i as i64 % w, i as i64 / w);
+                offsets
+                    .iter()
+                    .map(|&(dy, dx)| (x + dx, y + dy))
+                    .filter(|&(u, v)| (0..w).contains(&u) && (0..h).contains(&v))
+                    .map(|(u, v)| (v * w + u) as usize)
+                    .find(|&j| self.known[j])
+                    .map_or(([0.0; 3], false), |j| (self.colours[j], true))
+            })
+            .unzip();
+        Self {
+            colours,
+            known,
+            ..self
+        }
+    }
+
     /// The background of pixel `i` (row-major), where known.
     pub fn at(&self, i: usize) -> Option<[f32; 3]> {
         self.known[i].then(|| self.colours[i])
@@ -104,7 +142,8 @@ pub struct Backgrounds {
 
 impl Backgrounds {
     /// Estimates each of `views`' backgrounds from at most [`MAX_FRAMES`] of `frames` (evenly spaced) of
-    /// `subject`, as [`BackgroundPlate::estimate`] does.
+    /// `subject`, as [`BackgroundPlate::estimate`] does, then fills the unknown pixels near known ones
+    /// ([`BackgroundPlate::filled`]).
     pub fn estimate(
         subject: &PreparedSubject,
         frames: &[FrameId],
@@ -123,10 +162,8 @@ impl Backgrounds {
                 continue;
             };
             let margin = MARGIN_PX.max(first.width().max(first.height()) * 3 / 400);
-            plates.insert(
-                view,
-                BackgroundPlate::estimate(&images, &masks, margin, MIN_FRAMES),
-            );
+            let plate = BackgroundPlate::estimate(&images, &masks, margin, MIN_FRAMES);
+            plates.insert(view, plate.filled(FILL_MARGINS * margin));
         }
         Ok(Self { plates })
     }
@@ -258,5 +295,45 @@ mod tests {
             "{}",
             plate.known_share()
         );
+    }
+
+    #[test]
+    fn filling_copies_the_nearest_known_pixel_within_the_radius_by_brute_force() {
+        // A 19 × 13 plate, known on a scattered pattern; every known pixel has its own colour.
+        let (w, h) = (19u32, 13u32);
+        let known: Vec<bool> = (0..w * h).map(|i| (i * 11 + i / 7) % 13 == 0).collect();
+        let colours: Vec<[f32; 3]> = (0..w * h)
+            .map(|i| {
+                if known[i as usize] {
+                    [i as f32, 0.5, 1.0]
+                } else {
+                    [0.0; 3]
+                }
+            })
+            .collect();
+        let plate = BackgroundPlate {
+            width: w,
+            height: h,
+            colours,
+            known,
+        };
+        for r in [0u32, 1, 2, 4] {
+            let filled = plate.clone().filled(r);
+            for y in 0..h as i64 {
+                for x in 0..w as i64 {
+                    let i = (y * w as i64 + x) as usize;
+                    // The nearest originally known pixel: least squared distance, then least (dy, dx).
+                    let want = (0..h as i64)
+                        .flat_map(|v| (0..w as i64).map(move |u| (v, u)))
+                        .filter(|&(v, u)| plate.known[(v * w as i64 + u) as usize])
+                        .map(|(v, u)| ((v - y).pow(2) + (u - x).pow(2), v - y, u - x, v, u))
+                        .filter(|&(d2, ..)| d2 <= (r * r) as i64)
+                        .min()
+                        .map(|(.., v, u)| plate.colours[(v * w as i64 + u) as usize]);
+                    assert_eq!(filled.at(i), want, "radius {r} at {x},{y}");
+                }
+            }
+        }
+        assert!(plate.clone().filled(4).known_share() > plate.known_share());
     }
 }
