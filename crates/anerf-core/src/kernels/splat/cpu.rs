@@ -94,28 +94,31 @@ impl Bins {
 /// Bins the splats (`[N, SPLAT_WIDTH]`) into tiles, each tile's sorted by depth (then index, so that equal
 /// depths keep their input order).
 pub fn bin(splats: &[f32], spec: &RasterSpec) -> Bins {
-    let n = splats.len() / SPLAT_WIDTH;
+    bin_boxes(splats, &boxes(splats), spec)
+}
+
+/// [`bin`] with the splats' [`boxes`] at hand.
+fn bin_boxes(splats: &[f32], boxes: &[Option<(Splat, [f32; 4])>], spec: &RasterSpec) -> Bins {
     let tile = TILE as usize;
     let (w, h) = (spec.width as usize, spec.height as usize);
     let (tiles_x, tiles_y) = (w.div_ceil(tile), h.div_ceil(tile));
     // Each splat's pixel box, clipped to the image, as a range of tiles.
-    let boxes: Vec<Option<[usize; 4]>> = (0..n)
-        .into_par_iter()
-        .map(|i| {
-            let s = Splat::read(splats, i);
-            let (ex, ey) = s.extent()?;
-            let range = |m: f32, e: f32, len: usize| {
-                let lo = (m - e).ceil().max(0.0);
-                let hi = (m + e).floor().min(len as f32 - 1.0);
+    let tiles: Vec<Option<[usize; 4]>> = boxes
+        .par_iter()
+        .map(|b| {
+            let (_, [lx, hx, ly, hy]) = b.as_ref()?;
+            let range = |lo: f32, hi: f32, len: usize| {
+                let lo = lo.ceil().max(0.0);
+                let hi = hi.floor().min(len as f32 - 1.0);
                 (lo <= hi).then(|| (lo as usize / tile, hi as usize / tile))
             };
-            let (x0, x1) = range(s.mean[0], ex, w)?;
-            let (y0, y1) = range(s.mean[1], ey, h)?;
+            let (x0, x1) = range(*lx, *hx, w)?;
+            let (y0, y1) = range(*ly, *hy, h)?;
             Some([x0, x1, y0, y1])
         })
         .collect();
     let mut keys: Vec<(usize, f32, u32)> = Vec::new();
-    for (i, b) in boxes.iter().enumerate() {
+    for (i, b) in tiles.iter().enumerate() {
         let Some([x0, x1, y0, y1]) = *b else { continue };
         let depth = splats[i * SPLAT_WIDTH + 9];
         for ty in y0..=y1 {
@@ -291,25 +294,20 @@ fn composite_band(
 pub fn forward(splats: &[f32], spec: &RasterSpec, out: &mut [f32]) {
     let (w, h) = (spec.width as usize, spec.height as usize);
     assert_eq!(out.len(), w * h * PIXEL_WIDTH, "rasteriser output");
-    let bins = bin(splats, spec);
     let boxes = boxes(splats);
+    let bins = bin_boxes(splats, &boxes, spec);
     let band = TILE as usize * w * PIXEL_WIDTH;
-    out.par_chunks_mut(band).enumerate().for_each(|(ty, rows)| {
-        let mut pixels = vec![[0.0; PIXEL_WIDTH]; rows.len() / PIXEL_WIDTH];
-        composite_band(
-            &bins,
-            &boxes,
-            ty,
-            w,
-            pixels.len() / w,
-            &mut pixels,
-            |_, _| {},
-        );
-        for (p, o) in pixels.iter().zip(rows.chunks_mut(PIXEL_WIDTH)) {
-            o[..3].copy_from_slice(&p[..3]);
-            o[3] = 1.0 - p[3];
-        }
-    });
+    out.par_chunks_mut(band)
+        .enumerate()
+        .for_each_init(Vec::new, |pixels, (ty, rows)| {
+            let n = rows.len() / PIXEL_WIDTH;
+            pixels.resize(n, [0.0; PIXEL_WIDTH]);
+            composite_band(&bins, &boxes, ty, w, n / w, &mut pixels[..n], |_, _| {});
+            for (p, o) in pixels.iter().zip(rows.chunks_mut(PIXEL_WIDTH)) {
+                o[..3].copy_from_slice(&p[..3]);
+                o[3] = 1.0 - p[3];
+            }
+        });
 }
 
 /// The gradient of the splats (`[N, SPLAT_WIDTH]`; the depth's is 0) from the gradient of the output
@@ -323,8 +321,8 @@ pub fn backward(splats: &[f32], grad: &[f32], spec: &RasterSpec, out: &mut [f32]
         "rasteriser output gradient"
     );
     assert_eq!(out.len(), splats.len(), "splat gradient");
-    let bins = bin(splats, spec);
     let boxes = boxes(splats);
+    let bins = bin_boxes(splats, &boxes, spec);
     let band = TILE as usize * w * PIXEL_WIDTH;
     let total = grad
         .par_chunks(band)
