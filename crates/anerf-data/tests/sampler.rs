@@ -196,7 +196,7 @@ fn a_backdrop_band_trains_on_the_image_over_its_background() {
     let frames = [FrameId(0), frame];
     let images: Vec<_> = frames.iter().map(|&f| p.image(f, view).unwrap()).collect();
     let masks: Vec<_> = frames.iter().map(|&f| p.mask(f, view).unwrap()).collect();
-    let plate = BackgroundPlate::estimate(&images, &masks, 0, 1);
+    let plate = BackgroundPlate::estimate(&images, &masks, 0, 1, 1.0);
     let backgrounds = Backgrounds::new([(view, plate.clone())]);
     let draw = |mask_edges, backgrounds| {
         let options = SamplerOptions {

@@ -20,13 +20,19 @@ const MIN_FRAMES: usize = 3;
 /// Each mask is dilated by this many pixels (or 0.75 % of the image's larger side, if more) before its
 /// uncovered pixels count: a mask's edge is off by a few pixels, and an edge pixel mixes body and backdrop.
 const MARGIN_PX: u32 = 4;
+/// A pixel's background is known only where its colours over those frames stay this close to their median
+/// (the median absolute deviation, per channel, colours in `[0, 1]`): a backdrop that changes in most
+/// frames (a screen, people passing, a camera that moved) is no background to composite over. A camera's
+/// noise and JPEG's stay far under it.
+const MAX_SPREAD: f32 = 0.1;
 /// Unknown pixels within this many margins of a known one take its colour ([`BackgroundPlate::filled`]): a
 /// subject that stays in place hides the pixels next to its body in nearly every frame, a third of the
 /// band around its silhouette on the demo subject, and the backdrop there is mostly the backdrop beside it.
 const FILL_MARGINS: u32 = 2;
 
 /// One camera's background at the working resolution: per pixel the median colour (channels in
-/// `[0, 1]`) over the frames whose dilated mask leaves it uncovered, or unknown where too few do.
+/// `[0, 1]`) over the frames whose dilated mask leaves it uncovered, or unknown where too few do or their
+/// colours spread too far.
 #[derive(Debug, Clone, PartialEq)]
 pub struct BackgroundPlate {
     pub width: u32,
@@ -38,13 +44,15 @@ pub struct BackgroundPlate {
 
 impl BackgroundPlate {
     /// The median of each pixel's colours over the frames whose mask, dilated by `margin` pixels, leaves
-    /// it uncovered; known where at least `min_frames` frames do. `images` and `masks`: one per frame, at
+    /// it uncovered; known where at least `min_frames` frames do and, in every channel, the median absolute
+    /// deviation of those colours from it is at most `max_spread`. `images` and `masks`: one per frame, at
     /// least one, all of one size.
     pub fn estimate(
         images: &[Rgb32FImage],
         masks: &[GrayImage],
         margin: u32,
         min_frames: usize,
+        max_spread: f32,
     ) -> Self {
         assert!(!images.is_empty(), "a background needs at least one frame");
         let (width, height) = images[0].dimensions();
@@ -72,13 +80,16 @@ impl BackgroundPlate {
                 if values.len() < min_frames.max(1) {
                     return ([0.0; 3], false);
                 }
+                let mid = values.len() / 2;
                 let mut median = [0.0; 3];
+                let mut still = true;
                 for (c, m) in median.iter_mut().enumerate() {
                     let mut channel: Vec<f32> = values.iter().map(|v| v[c]).collect();
-                    let mid = channel.len() / 2;
                     *m = *channel.select_nth_unstable_by(mid, f32::total_cmp).1;
+                    channel.iter_mut().for_each(|v| *v = (*v - *m).abs());
+                    still &= *channel.select_nth_unstable_by(mid, f32::total_cmp).1 <= max_spread;
                 }
-                (median, true)
+                (median, still)
             })
             .unzip();
         Self {
@@ -162,7 +173,7 @@ impl Backgrounds {
                 continue;
             };
             let margin = MARGIN_PX.max(first.width().max(first.height()) * 3 / 400);
-            let plate = BackgroundPlate::estimate(&images, &masks, margin, MIN_FRAMES);
+            let plate = BackgroundPlate::estimate(&images, &masks, margin, MIN_FRAMES, MAX_SPREAD);
             plates.insert(view, plate.filled(FILL_MARGINS * margin));
         }
         Ok(Self { plates })
@@ -274,7 +285,7 @@ mod tests {
             })
             .collect();
         // Without a margin: each pixel is covered in one frame at most, so four or five values remain.
-        let plate = BackgroundPlate::estimate(&images, &masks, 0, 3);
+        let plate = BackgroundPlate::estimate(&images, &masks, 0, 3, 1.0);
         for x in 0..w as usize {
             let mut values: Vec<f32> = (0..frames)
                 .filter(|&f| body_at[f] != x)
@@ -286,7 +297,7 @@ mod tests {
         }
         // With a margin of 1, pixels 1 and 2 are left uncovered by two frames only (3, 4 and 0, 4), the
         // others by three or four.
-        let plate = BackgroundPlate::estimate(&images, &masks, 1, 3);
+        let plate = BackgroundPlate::estimate(&images, &masks, 1, 3, 1.0);
         assert_eq!((plate.at(1), plate.at(2)), (None, None));
         // Pixel 4 from frames 0, 1, 2: 0.4, 0.41 and 0.39, whose median is frame 0's.
         assert_eq!(plate.at(4), Some([4.0 / 10.0 + noise[0]; 3]));
@@ -295,6 +306,23 @@ mod tests {
             "{}",
             plate.known_share()
         );
+    }
+
+    #[test]
+    fn a_backdrop_that_changes_in_most_frames_is_not_known_one_that_changes_in_a_few_is() {
+        // Two pixels, never covered, over 5 frames: the first changes in every frame (median 0.5, absolute
+        // deviations 0.4, 0, 0.4, 0.2, 0.2: their median 0.2); the second is 0.5 but for two frames
+        // (deviations 0, 0, 0.4, 0, 0.4: median 0).
+        let values = [[0.1, 0.5], [0.5, 0.5], [0.9, 0.9], [0.3, 0.5], [0.7, 0.1]];
+        let images: Vec<Rgb32FImage> = values
+            .iter()
+            .map(|v| Rgb32FImage::from_fn(2, 1, |x, _| image::Rgb([v[x as usize]; 3])))
+            .collect();
+        let masks = vec![GrayImage::new(2, 1); values.len()];
+        let plate = BackgroundPlate::estimate(&images, &masks, 0, 3, 0.1);
+        assert_eq!((plate.at(0), plate.at(1)), (None, Some([0.5; 3])));
+        let plate = BackgroundPlate::estimate(&images, &masks, 0, 3, 0.2);
+        assert_eq!((plate.at(0), plate.at(1)), (Some([0.5; 3]), Some([0.5; 3])));
     }
 
     #[test]
