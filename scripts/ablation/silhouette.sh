@@ -7,7 +7,8 @@
 # each split's PSNR in the 2-pixel band around the true silhouette, outside it, and the predicted silhouette's
 # area over the true one.
 #
-# The settings compared are EDGES (default "skip train robust"; e.g. EDGES=robust to add one to a table).
+# The settings compared are EDGES (default "skip train robust"; e.g. EDGES=robust to add one to a table), on
+# the masks in MASKS (default "exact noisy").
 # BACKDROP=room trains on the same bodies rendered in front of a room (`anerf synth --backdrop room`), as a
 # capture's images are, so that a mask's wrong labels cover a backdrop instead of black; every run is still
 # evaluated against the exact subject on black.
@@ -27,13 +28,14 @@ if [ "$BACKDROP" != black ]; then
     TRAIN_EXACT="$OUT/subject-exact$TAG"
     degraded "$TRAIN_EXACT" --backdrop "$BACKDROP"
 fi
+MASKS="${MASKS:-exact noisy}"
 NOISY="$OUT/subject-masks-$NOISE$TAG"
-degraded "$NOISY" --mask-noise "$NOISE" --backdrop "$BACKDROP"
+[[ " $MASKS " != *" noisy "* ]] || degraded "$NOISY" --mask-noise "$NOISE" --backdrop "$BACKDROP"
 # Every run is evaluated against the exact subject's masks and images on black (the bodies are the same).
 EVAL_FLAGS=(--set "dataset.root=$EXACT" --set "dataset.cache=$OUT/cache-$(basename "$EXACT")")
 for edges in ${EDGES:-skip train robust}; do
-    variant "exact$TAG-$edges" "$TRAIN_EXACT" --set "train.mask_edges=$edges"
-    variant "masks-$NOISE$TAG-$edges" "$NOISY" --set "train.mask_edges=$edges"
+    [[ " $MASKS " != *" exact "* ]] || variant "exact$TAG-$edges" "$TRAIN_EXACT" --set "train.mask_edges=$edges"
+    [[ " $MASKS " != *" noisy "* ]] || variant "masks-$NOISE$TAG-$edges" "$NOISY" --set "train.mask_edges=$edges"
 done
 python3 "$ROOT/scripts/ablation/collect.py" --silhouette \
     --title "Mask edges ($PRESET, masks off by ≤ $NOISE px)" "${ROWS[@]}" | tee "$OUT/table.md"

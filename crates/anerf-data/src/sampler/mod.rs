@@ -33,8 +33,7 @@ pub enum MaskEdges {
     Train,
     /// Drawn like every pixel and marked ([`HostRays::edge`]), so that training weighs them with a robust
     /// loss: where the mask is right the edge is trained almost as with `Train`, where it is wrong its
-    /// pull is bounded and the rest of the data decides. The default: masks of unknown quality.
-    #[default]
+    /// pull is bounded and the rest of the data decides.
     Robust,
     /// Never drawn (the reference): the mask's errors are not learned, and the edge is not trained either.
     Skip,
@@ -43,8 +42,9 @@ pub enum MaskEdges {
     /// itself and the render is composited over the background ([`HostRays::backgrounds`]), and a band ray
     /// carries no mask label ([`HostRays::labelled`]), so the colours decide where the body ends, as a
     /// partly covered pixel's colour says how much of it the body covers. Band pixels whose background is
-    /// not known are not drawn; without any backgrounds, as `Robust`. For captures, whose cameras stand
-    /// still.
+    /// not known are not drawn; without any backgrounds, as `Robust`. The default: captures' cameras
+    /// stand still, and their masks are of unknown quality.
+    #[default]
     Backdrop,
 }
 

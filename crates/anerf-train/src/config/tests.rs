@@ -359,16 +359,18 @@ fn settings_over_a_value_where_a_section_belongs_are_an_error() {
     assert!(err.contains("`dataset` is not a section"), "{err}");
 }
 
-/// `train.mask_edges` reads its three names, defaults to `robust`, and reads earlier versions'
+/// `train.mask_edges` reads its four names, defaults to `backdrop`, and reads earlier versions'
 /// boolean `skip_mask_edges` (true: skip, false: train), in configs and in saved samplers alike.
 #[test]
 fn mask_edges_read_names_and_the_earlier_boolean() {
     let dir = tempfile::tempdir().unwrap();
     let p = write(dir.path(), "s.toml", SUBJECT);
-    assert_eq!(load(&p, &[]).unwrap().train.mask_edges, MaskEdges::Robust);
+    assert_eq!(load(&p, &[]).unwrap().train.mask_edges, MaskEdges::Backdrop);
     for (set, expected) in [
         ("train.mask_edges=train", MaskEdges::Train),
         ("train.mask_edges=robust", MaskEdges::Robust),
+        ("train.mask_edges=skip", MaskEdges::Skip),
+        ("train.mask_edges=backdrop", MaskEdges::Backdrop),
         ("train.skip_mask_edges=false", MaskEdges::Train),
         ("train.skip_mask_edges=true", MaskEdges::Skip),
     ] {
