@@ -190,6 +190,19 @@ impl Backgrounds {
     pub fn plate(&self, view: ViewId) -> Option<&BackgroundPlate> {
         self.plates.get(&view)
     }
+
+    /// The cameras whose background is known at fewer than `min_share` of their pixels, with that share,
+    /// in camera order: a backdrop that changes between frames, or cameras that moved.
+    pub fn sparse(&self, min_share: f32) -> Vec<(ViewId, f32)> {
+        let mut sparse: Vec<(ViewId, f32)> = self
+            .plates
+            .iter()
+            .map(|(&view, plate)| (view, plate.known_share()))
+            .filter(|&(_, share)| share < min_share)
+            .collect();
+        sparse.sort_by_key(|&(view, _)| view);
+        sparse
+    }
 }
 
 /// `mask` (non-zero = set) dilated by a square of half-side `r` pixels, row-major: a running maximum
@@ -323,6 +336,23 @@ mod tests {
         assert_eq!((plate.at(0), plate.at(1)), (None, Some([0.5; 3])));
         let plate = BackgroundPlate::estimate(&images, &masks, 0, 3, 0.2);
         assert_eq!((plate.at(0), plate.at(1)), (Some([0.5; 3]), Some([0.5; 3])));
+    }
+
+    #[test]
+    fn sparse_lists_the_cameras_whose_background_is_mostly_unknown() {
+        // Camera v's 1 × 4 plate is known at v of its 4 pixels.
+        let plate = |known: usize| BackgroundPlate {
+            width: 4,
+            height: 1,
+            colours: vec![[0.5; 3]; 4],
+            known: (0..4).map(|i| i < known).collect(),
+        };
+        let backgrounds = Backgrounds::new((0..=4).rev().map(|v| (ViewId(v), plate(v))));
+        assert_eq!(
+            backgrounds.sparse(0.5),
+            vec![(ViewId(0), 0.0), (ViewId(1), 0.25)]
+        );
+        assert_eq!(backgrounds.sparse(0.0), vec![]);
     }
 
     #[test]

@@ -30,6 +30,10 @@ use crate::render::render_view;
 use crate::run_dir::RunDir;
 use crate::stage::Stage;
 
+/// Under `mask_edges = "backdrop"`, a training camera whose background is known at fewer than this share
+/// of its pixels is named in a warning (a body rarely covers half of a camera's picture).
+const SPARSE_BACKGROUND: f32 = 0.5;
+
 /// Stage 1: trains (or resumes) on the training frames and views, writing checkpoints, logs and validation
 /// renders into `run`.
 pub fn train_stage1(
@@ -187,11 +191,26 @@ impl<'a> Stage1<'a> {
         record: Record<'a>,
     ) -> Result<Self> {
         let backgrounds = match cfg.mask_edges {
-            MaskEdges::Backdrop => Some(Arc::new(
-                Backgrounds::estimate(&exp.prepared, &exp.train_frames, &exp.train_views).context(
+            MaskEdges::Backdrop => {
+                let backgrounds = Backgrounds::estimate(
+                    &exp.prepared,
+                    &exp.train_frames,
+                    &exp.train_views,
+                )
+                .context(
                     "estimating the training views' backgrounds (train.mask_edges = \"backdrop\")",
-                )?,
-            )),
+                )?;
+                for (view, share) in backgrounds.sparse(SPARSE_BACKGROUND) {
+                    eprintln!(
+                        "warning: camera {view}'s background is known at only {:.0} % of its pixels \
+                         (its backdrop changes between frames, or the camera moved): its mask-edge band \
+                         is not trained where it is unknown; train.mask_edges = \"robust\" trains it \
+                         with the masks' labels",
+                        100.0 * share
+                    );
+                }
+                Some(Arc::new(backgrounds))
+            }
             _ => None,
         };
         let plan = StepPlan {
