@@ -139,15 +139,10 @@ fn the_packed_bundle_is_unpacked_and_one_over_the_limit_is_refused() {
     // Over the limit (1 MiB here, 60 by default): refused, nothing left.
     let big = dir.path().join("big");
     std::fs::create_dir(&big).unwrap();
-    // xorshift64: bytes xz cannot compress.
-    let mut state = 0x9e37_79b9_7f4a_7c15u64;
+    // Pseudo-random bytes xz cannot compress.
+    let mut random = anerf_testing::Xorshift::default();
     let noise: Vec<u8> = (0..3 << 20)
-        .map(|_| {
-            state ^= state << 13;
-            state ^= state >> 7;
-            state ^= state << 17;
-            (state >> 32) as u8
-        })
+        .map(|_| (random.next_bits() >> 32) as u8)
         .collect();
     std::fs::write(big.join("noise"), noise).unwrap();
     let too_big = dir.path().join("big.tar.xz");

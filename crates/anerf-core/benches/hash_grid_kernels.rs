@@ -5,7 +5,7 @@
 
 use anerf_core::kernels::hash_grid::cpu;
 use anerf_core::model::config::{ModelPreset, PointEncoding};
-use anerf_testing::report_ms;
+use anerf_testing::{report_ms, Xorshift};
 
 /// Timed calls per kernel, after one untimed call.
 const REPEATS: usize = 15;
@@ -20,14 +20,8 @@ fn main() {
         panic!("the fast preset encodes with hash grids");
     };
     let spec = nerf.spec();
-    // xorshift64: a fixed, dependency-free stream of uniform floats in [0, 1).
-    let mut state = 0x9e37_79b9_7f4a_7c15u64;
-    let mut uniform = move || {
-        state ^= state << 13;
-        state ^= state >> 7;
-        state ^= state << 17;
-        (state >> 40) as f32 / (1u64 << 24) as f32
-    };
+    let mut random = Xorshift::default();
+    let mut uniform = move || random.uniform();
     let points: Vec<f32> = (0..3 * n).map(|_| uniform() - 0.5).collect();
     let table: Vec<f32> = (0..spec.table_rows() * spec.features)
         .map(|_| (uniform() - 0.5) * 2e-2)

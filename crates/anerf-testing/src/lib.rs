@@ -12,5 +12,5 @@ pub mod tree;
 pub use close::{assert_close, worst_difference, Tolerance};
 pub use fixtures::{fixture, fixtures_dir, floats, json};
 pub use npy::npy_f64_header;
-pub use timing::report_ms;
+pub use timing::{report_ms, Xorshift};
 pub use tree::tree_snapshot;

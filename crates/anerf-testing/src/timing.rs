@@ -23,3 +23,28 @@ pub fn report_ms(label: &str, repeats: usize, mut f: impl FnMut()) -> f64 {
     );
     median
 }
+
+/// xorshift64: the benches' fixed, dependency-free stream of pseudo-random inputs.
+#[derive(Debug, Clone)]
+pub struct Xorshift(u64);
+
+impl Default for Xorshift {
+    fn default() -> Self {
+        Self(0x9e37_79b9_7f4a_7c15)
+    }
+}
+
+impl Xorshift {
+    /// The next 64 random bits.
+    pub fn next_bits(&mut self) -> u64 {
+        self.0 ^= self.0 << 13;
+        self.0 ^= self.0 >> 7;
+        self.0 ^= self.0 << 17;
+        self.0
+    }
+
+    /// A uniform float in `[0, 1)` (24 random bits).
+    pub fn uniform(&mut self) -> f32 {
+        (self.next_bits() >> 40) as f32 / (1u64 << 24) as f32
+    }
+}

@@ -60,11 +60,8 @@ pub fn project(
     let blended = weights.matmul(bones.rows()).reshape([n, 3, 4]);
     let linear = blended.clone().slice([0..n, 0..3, 0..3]);
     let shift = blended.slice([0..n, 0..3, 3..4]).reshape([n, 3]);
-    let posed = linear
-        .clone()
-        .matmul(cloud.means.val().reshape([n, 3, 1]))
-        .reshape([n, 3])
-        + shift;
+    let posed =
+        batched(linear.clone(), cloud.means.val().reshape([n, 3, 1])).reshape([n, 3]) + shift;
     let (w, b) = view.pose_to_camera();
     let w_t = matrix(w.transpose(), &device);
     let cam = posed.clone().matmul(w_t.clone()) + from_rows(&b.to_array(), 1, 3, &device);
@@ -77,7 +74,7 @@ pub fn project(
         .matmul(w_t)
         .reshape([n, 3, 3])
         .swap_dims(1, 2);
-    let factor = wl.matmul(cloud.covariance_factor());
+    let factor = batched(wl, cloud.covariance_factor());
     let column = |t: &Tensor<2>, i: usize| t.clone().slice([0..n, i..i + 1]);
     let depth = column(&cam, 2);
     let in_front = depth.clone().greater_elem(NEAR).float();
@@ -105,8 +102,8 @@ pub fn project(
         1,
     )
     .reshape([n, 2, 3]);
-    let g = jacobian.matmul(factor);
-    let cov = g.clone().matmul(g.swap_dims(1, 2)).reshape([n, 4]);
+    let g = batched(jacobian, factor);
+    let cov = batched(g.clone(), g.swap_dims(1, 2)).reshape([n, 4]);
     let xx = column(&cov, 0) + DILATION;
     let xy = column(&cov, 1);
     let yy = column(&cov, 3) + DILATION;
@@ -120,10 +117,7 @@ pub fn project(
     // View directions in canonical space: camera → Gaussian in pose space, back through Lᵀ.
     let eye = view.global.world_to_pose(view.camera.center());
     let towards = posed - from_rows(&eye.to_array(), 1, 3, &device);
-    let canonical = linear
-        .swap_dims(1, 2)
-        .matmul(towards.reshape([n, 3, 1]))
-        .reshape([n, 3]);
+    let canonical = batched(linear.swap_dims(1, 2), towards.reshape([n, 3, 1])).reshape([n, 3]);
     let norm = canonical
         .clone()
         .powi_scalar(2)
@@ -161,6 +155,17 @@ pub fn render(
     let splats = project(cloud, weights, bones, view);
     debug_assert_eq!(splats.dims()[1], SPLAT_WIDTH);
     splat::rasterize(splats, &spec)
+}
+
+/// The products `a_i · b_i` of one small matrix per row, `[N, I, K] · [N, K, J] → [N, I, J]`, as broadcast
+/// products summed over `K`: flex's batched matmul calls a GEMM for each 3 × 3 pair, which costs far more
+/// than their 27 multiplications.
+fn batched(a: Tensor<3>, b: Tensor<3>) -> Tensor<3> {
+    let [n, i, _] = a.dims();
+    let j = b.dims()[2];
+    (a.unsqueeze_dim::<4>(3) * b.unsqueeze_dim::<4>(1))
+        .sum_dim(2)
+        .reshape([n, i, j])
 }
 
 /// A glam matrix as a row-major `[3, 3]` tensor.
