@@ -1,6 +1,7 @@
 //! Fine-tuning a baked avatar against the run's training images: each step renders one training view of
 //! one training frame (cropped to the body's box) through the splat rasteriser, posed with the bones the
-//! NeRF was trained with, and moves the Gaussians by Adam on an L1 colour loss plus a silhouette loss;
+//! NeRF was trained with, and moves the Gaussians by Adam on an L1 colour loss plus a silhouette loss
+//! outside the mask-edge band;
 //! every so often the least opaque Gaussians are pruned and those whose means moved most are split, within
 //! the budget (3D Gaussian Splatting's densification, on the means' gradients in canonical space).
 
@@ -19,8 +20,10 @@ use super::adam::RowAdam;
 use super::store::BakedAvatar;
 use anerf_train::progress::StageProgress;
 
-/// Weight of the silhouette term `mean((alpha − mask)²)` beside the L1 colour term.
-const MASK_WEIGHT: f32 = 0.1;
+/// Weight of the silhouette term `mean((alpha − mask)²)` over the pixels outside the mask-edge band, beside
+/// the L1 colour term: as strong as the colour term, because on black a faint halo costs the colour term
+/// nothing (docs/QUALITY.md, "The bake's silhouette").
+const MASK_WEIGHT: f32 = 1.0;
 /// Learning rates: means (metres, decaying a hundredfold over the fit), log-scales, quaternions, opacity
 /// logits, colour coefficients (3D Gaussian Splatting's, for a body-sized scene).
 const LR_MEANS: f64 = 2e-4;
@@ -47,16 +50,20 @@ pub struct Shot {
     pub target: Vec<f32>,
     /// The crop's mask, 1 on the body.
     pub mask: Vec<f32>,
+    /// 1 where the silhouette term counts: outside the mask-edge band `dilate − erode`, where a mask is
+    /// either wrong (a capture's) or conservative (it marks every pixel the body touches, and would pull a
+    /// partly covered pixel to full opacity).
+    pub labelled: Vec<f32>,
 }
 
 impl Shot {
-    /// The crop of `image` and `mask` (seen by `camera`) around the corners of the body's world box
-    /// `corners`, with `CROP_MARGIN` pixels around them.
+    /// The crop of `image`, `mask` and its mask-edge band `band` (row-major; seen by `camera`) around the
+    /// corners of the body's world box `corners`, with `CROP_MARGIN` pixels around them.
     pub fn crop(
         camera: &Camera,
         corners: &[Vec3],
         image: &Rgb32FImage,
-        mask: &GrayImage,
+        (mask, band): (&GrayImage, &[bool]),
         global: GlobalTransform,
         bones: anerf_core::geometry::BoneTransforms,
     ) -> Self {
@@ -84,11 +91,13 @@ impl Shot {
         let (cw, ch) = (x1 - x0 + 1, y1 - y0 + 1);
         let mut target = Vec::with_capacity((cw * ch * 3) as usize);
         let mut body = Vec::with_capacity((cw * ch) as usize);
+        let mut labelled = Vec::with_capacity((cw * ch) as usize);
         for y in y0..=y1 {
             for x in x0..=x1 {
                 let m = f32::from(mask.get_pixel(x, y)[0] != 0);
                 target.extend(image.get_pixel(x, y).0.map(|c| c * m));
                 body.push(m);
+                labelled.push(f32::from(!band[(y * w + x) as usize]));
             }
         }
         let mut cropped = camera.clone();
@@ -102,7 +111,24 @@ impl Shot {
             bones,
             target,
             mask: body,
+            labelled,
         }
+    }
+
+    /// The shot's loss for a render of it, premultiplied colour `rgb` `[P, 3]` on black and opacity `alpha`
+    /// `[P, 1]`: the L1 colour error against the target plus [`MASK_WEIGHT`] times the mean of
+    /// `(alpha − mask)²` over the labelled pixels; and the colour's mean squared error (for the fit's PSNR).
+    pub fn loss(&self, rgb: Tensor<2>, alpha: Tensor<2>) -> (Tensor<1>, f32) {
+        let device = rgb.device();
+        let pixels = self.mask.len();
+        let target = from_rows(&self.target, pixels, 3, &device);
+        let mask = from_rows(&self.mask, pixels, 1, &device);
+        let labelled = from_rows(&self.labelled, pixels, 1, &device);
+        let count = self.labelled.iter().sum::<f32>().max(1.0);
+        let error = rgb - target;
+        let mse: f32 = error.clone().detach().powi_scalar(2).mean().into_scalar();
+        let silhouette = ((alpha - mask).powi_scalar(2) * labelled).sum() / count;
+        (error.abs().mean() + silhouette * MASK_WEIGHT, mse)
     }
 }
 
@@ -181,11 +207,7 @@ impl Fitted {
         let pixels = shot.mask.len();
         let rgb = image.clone().slice([0..pixels, 0..3]);
         let alpha = image.slice([0..pixels, 3..4]);
-        let target = from_rows(&shot.target, pixels, 3, &device);
-        let mask = from_rows(&shot.mask, pixels, 1, &device);
-        let error = rgb - target;
-        let mse: f32 = error.clone().detach().powi_scalar(2).mean().into_scalar();
-        let loss = error.abs().mean() + (alpha - mask).powi_scalar(2).mean() * MASK_WEIGHT;
+        let (loss, mse) = shot.loss(rgb, alpha);
         let grads = loss.backward();
         let params = [
             &cloud.means,
@@ -350,4 +372,59 @@ fn top_skin(skin: &Tensor<2>, joints: usize) -> (Vec<[u16; 4]>, Vec<[f32; 4]>) {
 /// PSNR (dB) of a mean squared error of colours in `[0, 1]`.
 pub fn psnr(mse: f64) -> f64 {
     -10.0 * mse.max(1e-12).log10()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use anerf_core::geometry::BoneTransforms;
+    use image::{ImageBuffer, Luma, Rgb};
+
+    /// A row of three pixels, all inside the (conservative) mask, the middle one in the mask-edge band and
+    /// covered by the body to 40 %, cropped whole by a camera that sees the body's box beyond the image.
+    fn shot() -> Shot {
+        let image = ImageBuffer::from_pixel(3, 1, Rgb([0.5f32, 0.4, 0.3]));
+        let mask: GrayImage = ImageBuffer::from_pixel(3, 1, Luma([1u8]));
+        let camera = Camera::from_rows(
+            [[1.0, 0.0, 1.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]],
+            [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]],
+            [0.0; 3],
+            [0.0; 5],
+            3,
+            1,
+        )
+        .unwrap();
+        let corners = [Vec3::new(-10.0, -10.0, 1.0), Vec3::new(10.0, 10.0, 1.0)];
+        let bones = BoneTransforms::from_matrices(vec![glam::Mat4::IDENTITY]).unwrap();
+        Shot::crop(
+            &camera,
+            &corners,
+            &image,
+            (&mask, &[false, true, false]),
+            GlobalTransform::default(),
+            bones,
+        )
+    }
+
+    /// The silhouette term leaves the band pixel's opacity alone and pulls the others toward the mask with
+    /// `∂/∂α = 2 · MASK_WEIGHT · (α − 1) / 2 labelled pixels`; the colour term, on black, does not depend on
+    /// opacity at all.
+    #[test]
+    fn the_silhouette_term_leaves_the_mask_edge_band_alone() {
+        let shot = shot();
+        assert_eq!(shot.labelled, [1.0, 0.0, 1.0]);
+        let device = anerf_device::cpu_device().autodiff();
+        let opacity = [0.9, 0.4, 0.7];
+        let alpha = from_rows(&opacity, 3, 1, &device).require_grad();
+        let (loss, _) = shot.loss(from_rows(&[0.2; 9], 3, 3, &device), alpha.clone());
+        let gradient = to_host(alpha.grad(&loss.backward()).unwrap());
+        for (i, &a) in opacity.iter().enumerate() {
+            let expected = if i == 1 { 0.0 } else { MASK_WEIGHT * (a - 1.0) };
+            assert!(
+                (gradient[i] - expected).abs() < 1e-6,
+                "pixel {i}: {} against {expected}",
+                gradient[i]
+            );
+        }
+    }
 }

@@ -123,7 +123,8 @@ pub(crate) fn frame_bones(
     Ok((pose, bones))
 }
 
-/// Every training view of every training frame, cropped to the body, posed as the NeRF renders it.
+/// Every training view of every training frame, cropped to the body, posed as the NeRF renders it, with
+/// the mask-edge band the silhouette term leaves out.
 fn training_shots(model: &AnimatableNerf, exp: &Experiment) -> Result<Vec<Shot>> {
     let mut shots = Vec::new();
     for &frame in &exp.train_frames {
@@ -131,11 +132,12 @@ fn training_shots(model: &AnimatableNerf, exp: &Experiment) -> Result<Vec<Shot>>
         let corners = exp.frame_bounds(frame)?.corners();
         for &view in &exp.train_views {
             let camera = &exp.prepared.cameras[view.0];
+            let (mask, band) = exp.prepared.mask_and_edge(frame, view)?;
             shots.push(Shot::crop(
                 camera,
                 &corners,
                 &exp.prepared.image(frame, view)?,
-                &exp.prepared.mask(frame, view)?,
+                (&mask, &band),
                 pose.global,
                 bones.clone(),
             ));
