@@ -380,8 +380,8 @@ mod tests {
     use anerf_core::geometry::BoneTransforms;
     use image::{ImageBuffer, Luma, Rgb};
 
-    /// A row of three pixels, all inside the (conservative) mask, the middle one in the mask-edge band and
-    /// covered by the body to 40 %, cropped whole by a camera that sees the body's box beyond the image.
+    /// A row of three pixels of one colour, all inside the (conservative) mask, the middle one in the
+    /// mask-edge band, cropped whole by a camera that sees the body's box beyond the image.
     fn shot() -> Shot {
         let image = ImageBuffer::from_pixel(3, 1, Rgb([0.5f32, 0.4, 0.3]));
         let mask: GrayImage = ImageBuffer::from_pixel(3, 1, Luma([1u8]));
