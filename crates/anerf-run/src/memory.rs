@@ -79,22 +79,29 @@ fn check_against(config: &ExperimentConfig, work: Work, available: u64) -> Resul
 /// and the projection's intermediates kept for the backward pass (about 40 tensors of up to 12 values).
 const BAKE_FLOATS_PER_GAUSSIAN: u64 = 4 * 23 + JOINTS as u64 + 40 * 12;
 
-/// Fails, naming `--budget`, when a bake of `budget` Gaussians cannot fit in this machine's memory.
-pub fn check_bake(budget: usize) -> Result<()> {
+/// Fails, naming `--budget`, when a bake of `budget` Gaussians fitted to training crops of at most
+/// `crop_pixels` pixels in all cannot fit in this machine's memory.
+pub fn check_bake(budget: usize, crop_pixels: u64) -> Result<()> {
     let Some(available) = host_memory_bytes() else {
         return Ok(());
     };
-    check_bake_against(budget, available)
+    check_bake_against(budget, crop_pixels, available)
 }
 
-fn check_bake_against(budget: usize, available: u64) -> Result<()> {
-    let needed = (budget as u64).saturating_mul(BAKE_FLOATS_PER_GAUSSIAN * 4);
+fn check_bake_against(budget: usize, crop_pixels: u64, available: u64) -> Result<()> {
+    let gaussians = (budget as u64).saturating_mul(BAKE_FLOATS_PER_GAUSSIAN * 4);
+    let crops = crop_pixels.saturating_mul(crate::bake::fit::Shot::BYTES_PER_PIXEL);
+    let needed = gaussians.saturating_add(crops);
     if needed > available {
+        let gib = |b: u64| b as f64 / (1u64 << 30) as f64;
         bail!(
-            "--budget {budget}: a bake of that many Gaussians needs up to {:.1} GiB, more than this \
-             machine's {:.1} GiB of memory",
-            needed as f64 / (1u64 << 30) as f64,
-            available as f64 / (1u64 << 30) as f64
+            "--budget {budget}: a bake of that many Gaussians ({:.1} GiB) and its training crops ({:.1} GiB, \
+             every training view of every training frame) needs up to {:.1} GiB, more than this machine's \
+             {:.1} GiB of memory; lower --budget or train on fewer views or frames",
+            gib(gaussians),
+            gib(crops),
+            gib(needed),
+            gib(available)
         );
     }
     Ok(())
@@ -146,11 +153,18 @@ preset = "{name}"
     #[test]
     fn a_bake_budget_that_cannot_fit_is_refused() {
         let machine = 16u64 << 30;
-        check_bake_against(50_000, machine).unwrap();
-        check_bake_against(1_000_000, machine).unwrap();
-        let e = check_bake_against(usize::MAX / 2, machine)
+        // The realistic subject's bake: 50,000 Gaussians, 100 frames × 4 views of 512².
+        let crops = 400 * 512 * 512;
+        check_bake_against(50_000, crops, machine).unwrap();
+        check_bake_against(1_000_000, crops, machine).unwrap();
+        let e = check_bake_against(usize::MAX / 2, crops, machine)
             .unwrap_err()
             .to_string();
         assert!(e.contains("--budget") && e.contains("more than"), "{e}");
+        // 5,000 frames × 4 views of 1024² hold 5 bytes a pixel: 98 GiB of crops.
+        let e = check_bake_against(50_000, 5_000 * 4 * 1024 * 1024, machine)
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("training crops (97.7 GiB"), "{e}");
     }
 }

@@ -41,24 +41,32 @@ const SPLIT_SHRINK: f32 = 1.6;
 const CROP_MARGIN: f32 = 4.0;
 
 /// One training image: a crop around the body, its camera moved to the crop, and the pose it shows.
+///
+/// A fit holds every training crop for its whole length, so the pixels stay at the prepared cache's 8 bits
+/// a channel and the labels are bytes: [`Shot::BYTES_PER_PIXEL`] a pixel instead of 20 as floats. Each step
+/// widens its one crop to floats.
 #[derive(Debug, Clone)]
 pub struct Shot {
     pub camera: Camera,
     pub global: GlobalTransform,
     pub bones: anerf_core::geometry::BoneTransforms,
-    /// The crop on black (background set to 0), row-major RGB in `[0, 1]`.
-    pub target: Vec<f32>,
-    /// The crop's mask, 1 on the body.
-    pub mask: Vec<f32>,
-    /// 1 where the silhouette term counts: outside the mask-edge band `dilate − erode`, where a mask is
+    /// The crop on black (background set to 0), row-major RGB, `255 ×` the colour in `[0, 1]`.
+    colour: Vec<[u8; 3]>,
+    /// The crop's mask, true on the body.
+    mask: Vec<bool>,
+    /// True where the silhouette term counts: outside the mask-edge band `dilate − erode`, where a mask is
     /// either wrong (a capture's) or conservative (it marks every pixel the body touches, and would pull a
     /// partly covered pixel to full opacity).
-    pub labelled: Vec<f32>,
+    labelled: Vec<bool>,
 }
 
 impl Shot {
+    /// Bytes a crop holds per pixel: three colour channels, the mask and the label.
+    pub const BYTES_PER_PIXEL: u64 = 5;
+
     /// The crop of `image`, `mask` and its mask-edge band `band` (row-major; seen by `camera`) around the
-    /// corners of the body's world box `corners`, with `CROP_MARGIN` pixels around them.
+    /// corners of the body's world box `corners`, with `CROP_MARGIN` pixels around them. The colours are
+    /// rounded to 8 bits, as the prepared cache stores them (so a cached image is kept exactly).
     pub fn crop(
         camera: &Camera,
         corners: &[Vec3],
@@ -89,15 +97,21 @@ impl Shot {
             None => (0, 0, w - 1, h - 1),
         };
         let (cw, ch) = (x1 - x0 + 1, y1 - y0 + 1);
-        let mut target = Vec::with_capacity((cw * ch * 3) as usize);
-        let mut body = Vec::with_capacity((cw * ch) as usize);
-        let mut labelled = Vec::with_capacity((cw * ch) as usize);
+        let pixels = (cw * ch) as usize;
+        let mut colour = Vec::with_capacity(pixels);
+        let mut body = Vec::with_capacity(pixels);
+        let mut labelled = Vec::with_capacity(pixels);
         for y in y0..=y1 {
             for x in x0..=x1 {
-                let m = f32::from(mask.get_pixel(x, y)[0] != 0);
-                target.extend(image.get_pixel(x, y).0.map(|c| c * m));
-                body.push(m);
-                labelled.push(f32::from(!band[(y * w + x) as usize]));
+                let on_body = mask.get_pixel(x, y)[0] != 0;
+                let byte = |c: f32| (c.clamp(0.0, 1.0) * 255.0).round() as u8;
+                colour.push(if on_body {
+                    image.get_pixel(x, y).0.map(byte)
+                } else {
+                    [0; 3]
+                });
+                body.push(on_body);
+                labelled.push(!band[(y * w + x) as usize]);
             }
         }
         let mut cropped = camera.clone();
@@ -109,10 +123,15 @@ impl Shot {
             camera: cropped,
             global,
             bones,
-            target,
+            colour,
             mask: body,
             labelled,
         }
+    }
+
+    /// Pixels in the crop.
+    pub fn pixels(&self) -> usize {
+        self.mask.len()
     }
 
     /// The shot's loss for a render of it, premultiplied colour `rgb` `[P, 3]` on black and opacity `alpha`
@@ -120,11 +139,18 @@ impl Shot {
     /// `(alpha − mask)²` over the labelled pixels; and the colour's mean squared error (for the fit's PSNR).
     pub fn loss(&self, rgb: Tensor<2>, alpha: Tensor<2>) -> (Tensor<1>, f32) {
         let device = rgb.device();
-        let pixels = self.mask.len();
-        let target = from_rows(&self.target, pixels, 3, &device);
-        let mask = from_rows(&self.mask, pixels, 1, &device);
-        let labelled = from_rows(&self.labelled, pixels, 1, &device);
-        let count = self.labelled.iter().sum::<f32>().max(1.0);
+        let pixels = self.pixels();
+        let target: Vec<f32> = self
+            .colour
+            .iter()
+            .flatten()
+            .map(|&c| f32::from(c) / 255.0)
+            .collect();
+        let floats = |bits: &[bool]| bits.iter().map(|&b| f32::from(b)).collect::<Vec<_>>();
+        let target = from_rows(&target, pixels, 3, &device);
+        let mask = from_rows(&floats(&self.mask), pixels, 1, &device);
+        let labelled = from_rows(&floats(&self.labelled), pixels, 1, &device);
+        let count = (self.labelled.iter().filter(|&&l| l).count() as f32).max(1.0);
         let error = rgb - target;
         let mse: f32 = error.clone().detach().powi_scalar(2).mean().into_scalar();
         let silhouette = ((alpha - mask).powi_scalar(2) * labelled).sum() / count;
@@ -204,7 +230,7 @@ impl Fitted {
         };
         let bones = BoneMatrices::new(&shot.bones, &device);
         let image = render(&cloud, self.skin.clone(), &bones, &view);
-        let pixels = shot.mask.len();
+        let pixels = shot.pixels();
         let rgb = image.clone().slice([0..pixels, 0..3]);
         let alpha = image.slice([0..pixels, 3..4]);
         let (loss, mse) = shot.loss(rgb, alpha);
@@ -380,11 +406,9 @@ mod tests {
     use anerf_core::geometry::BoneTransforms;
     use image::{ImageBuffer, Luma, Rgb};
 
-    /// A row of three pixels of one colour, all inside the (conservative) mask, the middle one in the
-    /// mask-edge band, cropped whole by a camera that sees the body's box beyond the image.
-    fn shot() -> Shot {
-        let image = ImageBuffer::from_pixel(3, 1, Rgb([0.5f32, 0.4, 0.3]));
-        let mask: GrayImage = ImageBuffer::from_pixel(3, 1, Luma([1u8]));
+    /// The whole of a three-pixel row `image` with `mask` and mask-edge `band`, seen by a camera whose
+    /// view of the body's box reaches beyond the image.
+    fn crop(image: &Rgb32FImage, mask: &GrayImage, band: &[bool]) -> Shot {
         let camera = Camera::from_rows(
             [[1.0, 0.0, 1.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]],
             [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]],
@@ -399,11 +423,48 @@ mod tests {
         Shot::crop(
             &camera,
             &corners,
-            &image,
-            (&mask, &[false, true, false]),
+            image,
+            (mask, band),
             GlobalTransform::default(),
             bones,
         )
+    }
+
+    /// A row of three pixels of one colour, all inside the (conservative) mask, the middle one in the
+    /// mask-edge band.
+    fn shot() -> Shot {
+        let image = ImageBuffer::from_pixel(3, 1, Rgb([0.5f32, 0.4, 0.3]));
+        crop(
+            &image,
+            &ImageBuffer::from_pixel(3, 1, Luma([1u8])),
+            &[false, true, false],
+        )
+    }
+
+    /// An 8-bit image (as the prepared cache stores it) is kept exactly, on black: a render of the image
+    /// times the mask with the mask's opacity has zero loss, and a render one level off in one channel of
+    /// one pixel has the L1 error `1 / (255 · 3P)`.
+    #[test]
+    fn a_crop_keeps_an_8_bit_image_exactly_on_black() {
+        let levels = [[10u8, 20, 30], [40, 50, 60], [70, 80, 255]];
+        let image = ImageBuffer::from_fn(3, 1, |x, _| {
+            Rgb(levels[x as usize].map(|l| f32::from(l) / 255.0))
+        });
+        let mask: GrayImage = ImageBuffer::from_fn(3, 1, |x, _| Luma([u8::from(x != 1)]));
+        let shot = crop(&image, &mask, &[false; 3]);
+        let mut rgb: Vec<f32> = (0..3)
+            .flat_map(|x| levels[x].map(|l| if x == 1 { 0.0 } else { f32::from(l) / 255.0 }))
+            .collect();
+        let device = anerf_device::cpu_device();
+        let alpha = || from_rows(&[1.0, 0.0, 1.0], 3, 1, &device);
+        let (loss, mse) = shot.loss(from_rows(&rgb, 3, 3, &device), alpha());
+        let loss: f32 = loss.into_scalar();
+        assert_eq!((loss, mse), (0.0, 0.0));
+        rgb[4] = 1.0 / 255.0;
+        let (loss, _) = shot.loss(from_rows(&rgb, 3, 3, &device), alpha());
+        let loss: f32 = loss.into_scalar();
+        let expected = 1.0 / (255.0 * 9.0);
+        assert!((loss - expected).abs() < 1e-7, "{loss} against {expected}");
     }
 
     /// The silhouette term leaves the band pixel's opacity alone and pulls the others toward the mask with
@@ -412,7 +473,7 @@ mod tests {
     #[test]
     fn the_silhouette_term_leaves_the_mask_edge_band_alone() {
         let shot = shot();
-        assert_eq!(shot.labelled, [1.0, 0.0, 1.0]);
+        assert_eq!(shot.labelled, [true, false, true]);
         let device = anerf_device::cpu_device().autodiff();
         let opacity = [0.9, 0.4, 0.7];
         let alpha = from_rows(&opacity, 3, 1, &device).require_grad();

@@ -61,7 +61,6 @@ pub fn bake(run_path: &Path, job: &BakeJob, options: &JobOptions) -> Result<Bake
     if job.budget == 0 || job.iterations == 0 {
         bail!("--budget and --iterations must be at least 1");
     }
-    crate::memory::check_bake(job.budget)?;
     let (run, config) = open_run(run_path, options, Work::Render)?;
     let dir = run.baked();
     if dir.exists() && !job.overwrite {
@@ -73,6 +72,15 @@ pub fn bake(run_path: &Path, job: &BakeJob, options: &JobOptions) -> Result<Bake
     let seed = config.seed;
     let log_every = config.train.log_every;
     let exp = Experiment::open(config, device.clone(), options.progress)?;
+    let image_pixels: u64 = exp
+        .train_views
+        .iter()
+        .map(|v| {
+            let c = &exp.prepared.cameras[v.0];
+            u64::from(c.width) * u64::from(c.height)
+        })
+        .sum();
+    crate::memory::check_bake(job.budget, image_pixels * exp.train_frames.len() as u64)?;
     let (surface, probes) = probed_surface(&model, &exp, &job.surface).context(
         "the canonical surface the Gaussians start on (a run whose model has no density above the iso \
          level cannot be baked)",
