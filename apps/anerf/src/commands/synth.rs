@@ -29,9 +29,10 @@ pub struct SynthArgs {
     /// moves in and out smoothly along the contour; the images stay exact.
     #[arg(long, value_name = "PX", default_value_t = 0.0)]
     pub mask_noise: f32,
-    /// What the images show behind the body: black (the NeRF's convention) or room (a floor, panelled
+    /// What the images show behind the body: black (the NeRF's convention), room (a floor, panelled
     /// walls and a ceiling fixed in the world, as a capture's backdrop; training masks it as it masks a
-    /// capture's). The masks are the body's either way.
+    /// capture's) or busy-room (the room with screens on a third of its panels whose colour changes every
+    /// frame, a backdrop no one image describes). The masks are the body's either way.
     #[arg(long, default_value = "black")]
     pub backdrop: Backdrop,
 }

@@ -25,7 +25,7 @@ const MARGIN_PX: u32 = 4;
 /// frames (a screen, people passing, a camera that moved) is no background to composite over. A camera's
 /// noise and JPEG's stay far under it.
 const MAX_SPREAD: f32 = 0.1;
-/// Unknown pixels within this many margins of a known one take its colour ([`BackgroundPlate::filled`]): a
+/// Hidden pixels within this many margins of a known one take its colour ([`BackgroundPlate::filled`]): a
 /// subject that stays in place hides the pixels next to its body in nearly every frame, a third of the
 /// band around its silhouette on the demo subject, and the backdrop there is mostly the backdrop beside it.
 const FILL_MARGINS: u32 = 2;
@@ -39,7 +39,19 @@ pub struct BackgroundPlate {
     pub height: u32,
     /// Row-major colours; black where unknown.
     colours: Vec<[f32; 3]>,
-    known: Vec<bool>,
+    seen: Vec<Seen>,
+}
+
+/// What the frames show of one pixel's background.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Seen {
+    /// One colour: the median over the frames that leave it uncovered.
+    Known,
+    /// Too few frames leave it uncovered: the body stays in front of it.
+    Hidden,
+    /// Enough frames leave it uncovered, but their colours spread: a screen, people passing, a camera
+    /// that moved. No neighbour tells its colour.
+    Changing,
 }
 
 impl BackgroundPlate {
@@ -67,7 +79,7 @@ impl BackgroundPlate {
             .map(|m| dilate(m, margin).into_iter().map(|b| !b).collect())
             .collect();
         let n = (width * height) as usize;
-        let (colours, known) = (0..n)
+        let (colours, seen) = (0..n)
             .into_par_iter()
             .map_init(Vec::new, |values: &mut Vec<[f32; 3]>, i| {
                 values.clear();
@@ -78,7 +90,7 @@ impl BackgroundPlate {
                     }
                 }
                 if values.len() < min_frames.max(1) {
-                    return ([0.0; 3], false);
+                    return ([0.0; 3], Seen::Hidden);
                 }
                 let mid = values.len() / 2;
                 let mut median = [0.0; 3];
@@ -89,20 +101,26 @@ impl BackgroundPlate {
                     channel.iter_mut().for_each(|v| *v = (*v - *m).abs());
                     still &= *channel.select_nth_unstable_by(mid, f32::total_cmp).1 <= max_spread;
                 }
-                (median, still)
+                if still {
+                    (median, Seen::Known)
+                } else {
+                    ([0.0; 3], Seen::Changing)
+                }
             })
             .unzip();
         Self {
             width,
             height,
             colours,
-            known,
+            seen,
         }
     }
 
-    /// The plate with each unknown pixel within `radius` pixels (Euclidean) of a known one given the
-    /// colour of the nearest (the first in row-major order of the offsets among equally near ones), and
-    /// counted as known; the rest stays unknown. Only pixels known before the fill are copied from.
+    /// The plate with each hidden pixel (too few frames leave it uncovered) within `radius` pixels
+    /// (Euclidean) of a known one given the colour of the nearest (the first in row-major order of the
+    /// offsets among equally near ones), and counted as known; the rest stays unknown. Only pixels known
+    /// before the fill are copied from, and a changing pixel stays unknown: its neighbours do not tell
+    /// its colour.
     pub fn filled(self, radius: u32) -> Self {
         let r = radius as i64;
         let mut offsets: Vec<(i64, i64)> = (-r..=r)
@@ -111,11 +129,11 @@ impl BackgroundPlate {
             .collect();
         offsets.sort_by_key(|&(dy, dx)| dy * dy + dx * dx);
         let (w, h) = (self.width as i64, self.height as i64);
-        let (colours, known) = (0..self.known.len())
+        let (colours, seen) = (0..self.seen.len())
             .into_par_iter()
             .map(|i| {
-                if self.known[i] {
-                    return (self.colours[i], true);
+                if self.seen[i] != Seen::Hidden {
+                    return (self.colours[i], self.seen[i]);
                 }
                 let (x, y) = (i as i64 % w, i as i64 / w);
                 offsets
@@ -123,25 +141,26 @@ impl BackgroundPlate {
                     .map(|&(dy, dx)| (x + dx, y + dy))
                     .filter(|&(u, v)| (0..w).contains(&u) && (0..h).contains(&v))
                     .map(|(u, v)| (v * w + u) as usize)
-                    .find(|&j| self.known[j])
-                    .map_or(([0.0; 3], false), |j| (self.colours[j], true))
+                    .find(|&j| self.seen[j] == Seen::Known)
+                    .map_or(([0.0; 3], Seen::Hidden), |j| (self.colours[j], Seen::Known))
             })
             .unzip();
         Self {
             colours,
-            known,
+            seen,
             ..self
         }
     }
 
     /// The background of pixel `i` (row-major), where known.
     pub fn at(&self, i: usize) -> Option<[f32; 3]> {
-        self.known[i].then(|| self.colours[i])
+        (self.seen[i] == Seen::Known).then(|| self.colours[i])
     }
 
     /// The share of the pixels whose background is known.
     pub fn known_share(&self) -> f32 {
-        self.known.iter().filter(|&&k| k).count() as f32 / self.known.len().max(1) as f32
+        let known = self.seen.iter().filter(|&&s| s == Seen::Known).count();
+        known as f32 / self.seen.len().max(1) as f32
     }
 }
 
@@ -345,7 +364,9 @@ mod tests {
             width: 4,
             height: 1,
             colours: vec![[0.5; 3]; 4],
-            known: (0..4).map(|i| i < known).collect(),
+            seen: (0..4)
+                .map(|i| if i < known { Seen::Known } else { Seen::Hidden })
+                .collect(),
         };
         let backgrounds = Backgrounds::new((0..=4).rev().map(|v| (ViewId(v), plate(v))));
         assert_eq!(
@@ -357,12 +378,20 @@ mod tests {
 
     #[test]
     fn filling_copies_the_nearest_known_pixel_within_the_radius_by_brute_force() {
-        // A 19 × 13 plate, known on a scattered pattern; every known pixel has its own colour.
+        // A 19 × 13 plate, known on a scattered pattern, every known pixel with its own colour; of the
+        // others, every fifth changes (its frames disagreed) and the rest are hidden.
         let (w, h) = (19u32, 13u32);
-        let known: Vec<bool> = (0..w * h).map(|i| (i * 11 + i / 7) % 13 == 0).collect();
+        let known = |i: u32| (i * 11 + i / 7) % 13 == 0;
+        let seen: Vec<Seen> = (0..w * h)
+            .map(|i| match (known(i), i % 5 == 0) {
+                (true, _) => Seen::Known,
+                (false, true) => Seen::Changing,
+                (false, false) => Seen::Hidden,
+            })
+            .collect();
         let colours: Vec<[f32; 3]> = (0..w * h)
             .map(|i| {
-                if known[i as usize] {
+                if known(i) {
                     [i as f32, 0.5, 1.0]
                 } else {
                     [0.0; 3]
@@ -373,21 +402,23 @@ mod tests {
             width: w,
             height: h,
             colours,
-            known,
+            seen,
         };
         for r in [0u32, 1, 2, 4] {
             let filled = plate.clone().filled(r);
             for y in 0..h as i64 {
                 for x in 0..w as i64 {
                     let i = (y * w as i64 + x) as usize;
-                    // The nearest originally known pixel: least squared distance, then least (dy, dx).
+                    // The nearest originally known pixel: least squared distance, then least (dy, dx);
+                    // none for a changing pixel.
                     let want = (0..h as i64)
                         .flat_map(|v| (0..w as i64).map(move |u| (v, u)))
-                        .filter(|&(v, u)| plate.known[(v * w as i64 + u) as usize])
+                        .filter(|&(v, u)| known((v * w as i64 + u) as u32))
                         .map(|(v, u)| ((v - y).pow(2) + (u - x).pow(2), v - y, u - x, v, u))
                         .filter(|&(d2, ..)| d2 <= (r * r) as i64)
                         .min()
-                        .map(|(.., v, u)| plate.colours[(v * w as i64 + u) as usize]);
+                        .map(|(.., v, u)| plate.colours[(v * w as i64 + u) as usize])
+                        .filter(|_| plate.seen[i] != Seen::Changing);
                     assert_eq!(filled.at(i), want, "radius {r} at {x},{y}");
                 }
             }

@@ -186,7 +186,7 @@ fn write_into(
                             Some(lit) => lit.shade(outfit.albedo(s.canonical), s, eye),
                             None => outfit.colour(s.canonical, s.canonical_normal),
                         },
-                        plates[v].as_ref(),
+                        plates[v].as_ref().map(|p| p.at_frame(f)),
                     );
                     if spec.mask_noise > 0.0 {
                         let (w, h) = (view.width as usize, view.height as usize);

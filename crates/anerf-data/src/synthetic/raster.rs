@@ -15,7 +15,7 @@
 use anerf_core::geometry::Camera;
 use glam::{Vec2, Vec3};
 
-use super::backdrop::Plate;
+use super::backdrop::PlateAt;
 
 /// A posed mesh with what is needed to colour it.
 pub struct Scene<'a> {
@@ -156,7 +156,7 @@ pub fn render(
     scene: &Scene,
     samples: u32,
     shade: impl Fn(&Surface) -> Vec3,
-    backdrop: Option<&Plate>,
+    backdrop: Option<PlateAt>,
 ) -> RenderedView {
     let s = samples as usize;
     let (w, h) = (camera.width as usize, camera.height as usize);
@@ -500,7 +500,13 @@ mod tests {
         let samples = 3;
         let plate = Backdrop::Room.plate(&cam, samples).unwrap();
         let plain = render(&cam, &scene, samples, |_| Vec3::ONE, None);
-        let view = render(&cam, &scene, samples, |_| Vec3::ONE, Some(&plate));
+        let view = render(
+            &cam,
+            &scene,
+            samples,
+            |_| Vec3::ONE,
+            Some(plate.at_frame(0)),
+        );
         assert_eq!(view.mask, plain.mask);
         let (mut empty, mut full, mut partial) = (0, 0, 0);
         for v in 0..64 {
@@ -516,7 +522,7 @@ mod tests {
                                 u as f32 + (sx as f32 + 0.5) / samples as f32 - 0.5,
                                 v as f32 + (sy as f32 + 0.5) / samples as f32 - 0.5,
                             );
-                            mean += Backdrop::Room.colour(&cam.raw_pixel_ray(at)) / 9.0;
+                            mean += Backdrop::Room.colour(&cam.raw_pixel_ray(at), 0) / 9.0;
                         }
                     }
                     let want = (mean * 255.0).round();
