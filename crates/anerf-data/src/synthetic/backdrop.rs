@@ -10,10 +10,10 @@
 
 use anerf_core::geometry::{Camera, Ray};
 use anerf_core::named::Named;
-
-use super::rng::SplitMix64;
 use glam::{Vec2, Vec3};
 use serde::{Deserialize, Serialize};
+
+use super::rng::SplitMix64;
 
 /// What lies behind the body in a synthetic subject's images.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
@@ -57,6 +57,16 @@ enum Behind {
     Screen(usize),
 }
 
+impl Behind {
+    /// Its colour in frame `frame`.
+    fn colour(self, frame: usize) -> Vec3 {
+        match self {
+            Behind::Still(colour) => colour,
+            Behind::Screen(n) => screen(n, frame),
+        }
+    }
+}
+
 /// The backdrop behind every point of a camera's supersampled grid, computed once per camera (only the
 /// screens change from frame to frame).
 pub struct Plate {
@@ -83,10 +93,7 @@ pub struct PlateAt<'a> {
 impl PlateAt<'_> {
     /// The colour behind grid point `(x, y)` (linear RGB in `[0, 1]`).
     pub fn at(&self, x: usize, y: usize) -> Vec3 {
-        match self.plate.points[y * self.plate.width + x] {
-            Behind::Still(colour) => colour,
-            Behind::Screen(n) => screen(n, self.frame),
-        }
+        self.plate.points[y * self.plate.width + x].colour(self.frame)
     }
 }
 
@@ -113,10 +120,7 @@ impl Backdrop {
     /// Linear RGB in `[0, 1]` seen along `ray` (world space, metres) in frame `frame` where no body is
     /// in the way.
     pub fn colour(self, ray: &Ray, frame: usize) -> Vec3 {
-        match self.behind(ray) {
-            Behind::Still(colour) => colour,
-            Behind::Screen(n) => screen(n, frame),
-        }
+        self.behind(ray).colour(frame)
     }
 
     fn behind(self, ray: &Ray) -> Behind {
