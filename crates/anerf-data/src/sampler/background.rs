@@ -353,6 +353,8 @@ mod tests {
         let masks = vec![GrayImage::new(2, 1); values.len()];
         let plate = BackgroundPlate::estimate(&images, &masks, 0, 3, 0.1);
         assert_eq!((plate.at(0), plate.at(1)), (None, Some([0.5; 3])));
+        // Filling leaves the changing pixel unknown although its neighbour is known.
+        assert_eq!(plate.clone().filled(1).at(0), None);
         let plate = BackgroundPlate::estimate(&images, &masks, 0, 3, 0.2);
         assert_eq!((plate.at(0), plate.at(1)), (Some([0.5; 3]), Some([0.5; 3])));
     }
