@@ -121,10 +121,6 @@ impl<'a> MeshView<'a> {
     }
 }
 
-fn color_byte(v: f32) -> u8 {
-    (v.clamp(0.0, 1.0) * 255.0).round() as u8
-}
-
 /// Writes `mesh` as binary little-endian PLY: `float x y z`, `uchar red green blue` when coloured, one
 /// `float` per attribute, and faces as `list uchar int vertex_indices`.
 pub fn write_ply(path: &Path, mesh: &MeshView) -> Result<(), EvalError> {
@@ -151,7 +147,7 @@ pub fn write_ply(path: &Path, mesh: &MeshView) -> Result<(), EvalError> {
             bytes.extend_from_slice(&v.to_le_bytes());
         }
         if let Some(colors) = mesh.colors {
-            bytes.extend(colors[i].map(color_byte));
+            bytes.extend(colors[i].map(anerf_data::formats::images::channel_byte));
         }
         for attribute in mesh.attributes {
             bytes.extend_from_slice(&attribute.values[i].to_le_bytes());

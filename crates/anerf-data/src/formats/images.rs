@@ -36,6 +36,12 @@ pub fn decode_bytes(bytes: &[u8]) -> Result<DynamicImage, image::ImageError> {
     image::load_from_memory_with_format(bytes, format)
 }
 
+/// A channel in `[0, 1]` as an 8-bit value (clamped, rounded): what the prepared cache stores, and the
+/// inverse of [`read_rgb`]'s `/ 255` on 8-bit values.
+pub fn channel_byte(c: f32) -> u8 {
+    (c.clamp(0.0, 1.0) * 255.0).round() as u8
+}
+
 /// An RGB image with channels in `[0, 1]` (8-bit values / 255, as the reference reads them).
 pub fn read_rgb(path: &Path) -> Result<Rgb32FImage, DataError> {
     Ok(decode(path)?.into_rgb32f())

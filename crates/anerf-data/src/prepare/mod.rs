@@ -545,11 +545,7 @@ fn json<T: Serialize + ?Sized>(v: &T) -> Vec<u8> {
 
 fn png_rgb(img: &Rgb32FImage) -> Vec<u8> {
     let rgb = image::RgbImage::from_fn(img.width(), img.height(), |x, y| {
-        image::Rgb(
-            img.get_pixel(x, y)
-                .0
-                .map(|c| (c.clamp(0.0, 1.0) * 255.0).round() as u8),
-        )
+        image::Rgb(img.get_pixel(x, y).0.map(images::channel_byte))
     });
     encode_png(image::DynamicImage::ImageRgb8(rgb))
 }

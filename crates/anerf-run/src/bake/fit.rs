@@ -8,6 +8,7 @@
 use anerf_core::gaussians::{render, GaussianCloud, SplatView};
 use anerf_core::geometry::{BoneMatrices, Camera, GlobalTransform, PixelConvention};
 use anerf_core::tensor::{from_rows, to_host};
+use anerf_data::formats::images::channel_byte;
 use anyhow::Result;
 use burn::prelude::*;
 use burn::tensor::activation::sigmoid;
@@ -104,9 +105,8 @@ impl Shot {
         for y in y0..=y1 {
             for x in x0..=x1 {
                 let on_body = mask.get_pixel(x, y)[0] != 0;
-                let byte = |c: f32| (c.clamp(0.0, 1.0) * 255.0).round() as u8;
                 colour.push(if on_body {
-                    image.get_pixel(x, y).0.map(byte)
+                    image.get_pixel(x, y).0.map(channel_byte)
                 } else {
                     [0; 3]
                 });
