@@ -205,6 +205,15 @@ fn brute_surface(p: Vec3, v: &[Vec3], f: &[[u32; 3]], w: &SkinningWeights) -> (f
     (d, weights, runner)
 }
 
+/// A random point in a box around the tiny body (metres), inside and outside it.
+fn point_near_body(rng: &mut impl Rng) -> Vec3 {
+    Vec3::new(
+        rng.random_range(-0.6..0.6),
+        rng.random_range(-0.3..1.0),
+        rng.random_range(-0.4..0.4),
+    )
+}
+
 #[test]
 fn volumes_match_brute_force_nearest_surface_and_vertex() {
     let (v, f, w) = tiny_body();
@@ -212,11 +221,7 @@ fn volumes_match_brute_force_nearest_surface_and_vertex() {
     let mut rng = rand::rngs::StdRng::seed_from_u64(7);
     let mut ties = 0;
     for _ in 0..2000 {
-        let p = Vec3::new(
-            rng.random_range(-0.6..0.6),
-            rng.random_range(-0.3..1.0),
-            rng.random_range(-0.4..0.4),
-        );
+        let p = point_near_body(&mut rng);
         let c = index.closest(p).unwrap();
         let (d, weights, runner) = brute_surface(p, &v, &f, &w);
         assert!((c.distance - d).abs() < 1e-5, "{p}: {} vs {d}", c.distance);
@@ -289,6 +294,32 @@ fn volumes_match_brute_force_nearest_surface_and_vertex() {
         }
     }
     assert!(checked > 200, "{checked}");
+}
+
+#[test]
+fn a_bounded_search_agrees_with_the_full_one_and_finds_nothing_beyond_its_bound() {
+    // The volumes bound each node's search by its neighbour's nearest face; a bound at or above the true
+    // distance must give the full search's face, point and distance, and one below it nothing.
+    let (v, f, _) = tiny_body();
+    let index = MeshIndex::triangles(&v, &f);
+    let mut rng = rand::rngs::StdRng::seed_from_u64(11);
+    for _ in 0..500 {
+        let p = point_near_body(&mut rng);
+        let full = index.closest(p).unwrap();
+        // An arbitrary face's distance is a valid bound, as is the exact one.
+        let other = index.distance_to(rng.random_range(0..f.len()), p);
+        assert!(other >= full.distance);
+        for bound in [other, full.distance] {
+            assert_eq!(
+                index.closest_within(p, bound),
+                Some(full),
+                "{p} within {bound}"
+            );
+        }
+        if full.distance > 1e-2 {
+            assert_eq!(index.closest_within(p, full.distance * 0.999), None, "{p}");
+        }
+    }
 }
 
 /// A frame's posed world vertices, the same in pose space, and the pose-space box ± 0.05 m.

@@ -309,70 +309,64 @@ pub fn prepare_with(
         .collect();
     let lbs = subject.root.join("lbs");
 
-    // Per-frame bounds and pose-space volumes.
-    progress.start("volumes", frames.len() as u64 + 1);
-    let mut entries = Vec::with_capacity(frames.len());
-    for &f in &frames {
-        let rec = &subject.frames[f];
-        let world = rec.vertices.read(Some(body.canonical_vertices.len()))?;
-        let pose_space: Vec<Vec3> = world
-            .iter()
-            .map(|&x| rec.pose.global.world_to_pose(x))
-            .collect();
-        let bounds = Aabb::from_points(world.iter().copied())
-            .expect("vertices")
-            .padded(options.box_padding);
-        let out = dir.join(frame_volume_name(f));
-        if !out.is_file() {
-            let vol = if options.dataset_volumes {
-                dataset_volume(
-                    &lbs.join("bweights").join(format!("{}.npy", rec.file_index)),
-                    &pose_space,
-                    options,
-                    body.skeleton.num_joints(),
-                )?
-            } else {
-                compute_volume(
-                    &pose_space,
-                    &body.faces,
-                    &body.weights,
-                    options.nearest,
-                    options.grid,
-                )
-            };
-            write_bytes(&out, &volume_bytes(&vol))?;
+    // The volume of a body whose vertices are `points` (in the volume's frame) into `out` unless there:
+    // computed, or read from the dataset's `npy` of it.
+    let write_volume = |points: &[Vec3], npy: PathBuf, out: PathBuf| -> Result<(), DataError> {
+        if out.is_file() {
+            return Ok(());
         }
-        entries.push(FrameEntry {
-            id: f,
-            file_index: rec.file_index,
-            pose: rec.pose.clone(),
-            bounds,
-        });
-        progress.advance();
-    }
-    let canonical_bounds = Aabb::from_points(body.canonical_vertices.iter().copied())
-        .expect("vertices")
-        .padded(options.box_padding);
-    let out = dir.join(CANONICAL_VOLUME);
-    if !out.is_file() {
         let vol = if options.dataset_volumes {
-            dataset_volume(
-                &lbs.join("tbw.npy"),
-                &body.canonical_vertices,
-                options,
-                body.skeleton.num_joints(),
-            )?
+            dataset_volume(&npy, points, options, body.skeleton.num_joints())?
         } else {
             compute_volume(
-                &body.canonical_vertices,
+                points,
                 &body.faces,
                 &body.weights,
                 options.nearest,
                 options.grid,
             )
         };
-        write_bytes(&out, &volume_bytes(&vol))?;
-    }
+        Ok(write_bytes(&out, &volume_bytes(&vol))?)
+    };
+
+    // Per-frame bounds and pose-space volumes, frames in parallel (each volume is parallel too), so that one
+    // frame's file is written while others compute.
+    progress.start("volumes", frames.len() as u64 + 1);
+    let entries = frames
+        .par_iter()
+        .map(|&f| {
+            let rec = &subject.frames[f];
+            let world = rec.vertices.read(Some(body.canonical_vertices.len()))?;
+            let pose_space: Vec<Vec3> = world
+                .iter()
+                .map(|&x| rec.pose.global.world_to_pose(x))
+                .collect();
+            let bounds = Aabb::from_points(world.iter().copied())
+                .expect("vertices")
+                .padded(options.box_padding);
+            write_volume(
+                &pose_space,
+                lbs.join("bweights").join(format!("{}.npy", rec.file_index)),
+                dir.join(frame_volume_name(f)),
+            )?;
+            progress.advance();
+            Ok(FrameEntry {
+                id: f,
+                file_index: rec.file_index,
+                pose: rec.pose.clone(),
+                bounds,
+            })
+        })
+        .collect::<Result<Vec<_>, DataError>>()?;
+    let canonical_bounds = Aabb::from_points(body.canonical_vertices.iter().copied())
+        .expect("vertices")
+        .padded(options.box_padding);
+    write_volume(
+        &body.canonical_vertices,
+        lbs.join("tbw.npy"),
+        dir.join(CANONICAL_VOLUME),
+    )?;
+    progress.advance();
     progress.finish();
 
     // Images and masks, all (frame, view) pairs in parallel.

@@ -34,6 +34,8 @@ pub struct MeshIndex {
     faces: Vec<[u32; 3]>,
     points_only: bool,
     order: Vec<usize>,
+    /// Bounds of `faces[order[slot]]` at each `slot`: a cheap test before the exact distance.
+    prim_boxes: Vec<Aabb>,
     nodes: Vec<Node>,
 }
 
@@ -60,6 +62,7 @@ impl MeshIndex {
             vertices,
             faces,
             points_only,
+            prim_boxes: Vec::new(),
             nodes: Vec::new(),
         };
         if !index.faces.is_empty() {
@@ -71,6 +74,7 @@ impl MeshIndex {
                 .collect();
             let mut order = std::mem::take(&mut index.order);
             index.split(&mut order, 0, &centroids);
+            index.prim_boxes = order.iter().map(|&i| index.prim_bounds(i)).collect();
             index.order = order;
         }
         index
@@ -117,32 +121,65 @@ impl MeshIndex {
 
     /// The nearest primitive to `p`; `None` for an empty mesh.
     pub fn closest(&self, p: Vec3) -> Option<Closest> {
+        self.closest_within(p, f32::INFINITY)
+    }
+
+    /// The nearest primitive to `p` if it lies within `bound` metres, else `None`. With a bound at or above
+    /// the true distance the answer is [`closest`](Self::closest)'s; the bound only prunes the search, so a
+    /// caller that knows a nearby primitive (the previous grid node's) searches far fewer boxes. The bound
+    /// carries a slack of 1e-5 of itself plus a micrometre (rounding of the closest point at coordinates of
+    /// a metre or so), so one taken from [`distance_to`](Self::distance_to) of the nearest primitive finds it.
+    pub fn closest_within(&self, p: Vec3, bound: f32) -> Option<Closest> {
+        let slack = bound * (1.0 + 1e-5) + 1e-6;
+        let limit = slack * slack;
         let mut best: Option<(f32, usize, [f32; 3])> = None;
-        let mut stack = vec![0usize];
-        while let Some(n) = stack.pop() {
-            let Some(node) = self.nodes.get(n) else { break };
-            let d2 = box_distance2(&node.bounds, p);
-            if best.is_some_and(|(b, _, _)| d2 > b) {
+        // Each entry keeps its box's squared distance, measured when its parent was opened. Median splits
+        // halve every node, so the depth (and the stack) stays under 64.
+        let mut stack = [(0usize, 0.0f32); 64];
+        let mut top = 0;
+        if let Some(root) = self.nodes.first() {
+            stack[0] = (0, box_distance2(&root.bounds, p));
+            top = 1;
+        }
+        while top > 0 {
+            top -= 1;
+            let (n, d2) = stack[top];
+            if d2 > best.map_or(limit, |(b, _, _)| b) {
                 continue;
             }
+            let node = &self.nodes[n];
             if node.count > 0 {
-                for &i in &self.order[node.start..node.start + node.count] {
+                for slot in node.start..node.start + node.count {
+                    let reach = best.map_or(limit, |(b, _, _)| b);
+                    if box_distance2(&self.prim_boxes[slot], p) > reach {
+                        continue;
+                    }
+                    let i = self.order[slot];
                     let (d2, bary) = self.prim_distance2(i, p);
-                    if best.is_none_or(|(b, _, _)| d2 < b) {
+                    if d2 <= limit && best.is_none_or(|(b, _, _)| d2 < b) {
                         best = Some((d2, i, bary));
                     }
                 }
             } else {
                 let (l, r) = (n + 1, node.start);
-                // Visit the nearer child first (pushed last).
                 let (dl, dr) = (
                     box_distance2(&self.nodes[l].bounds, p),
                     box_distance2(&self.nodes[r].bounds, p),
                 );
-                if dl < dr {
-                    stack.extend([r, l]);
+                // Visit the nearer child first (pushed last); a child beyond reach is never pushed.
+                let reach = best.map_or(limit, |(b, _, _)| b);
+                let (near, far) = if dl < dr {
+                    ((l, dl), (r, dr))
                 } else {
-                    stack.extend([l, r]);
+                    ((r, dr), (l, dl))
+                };
+                if far.1 <= reach {
+                    stack[top] = far;
+                    top += 1;
+                }
+                if near.1 <= reach {
+                    stack[top] = near;
+                    top += 1;
                 }
             }
         }
@@ -151,6 +188,11 @@ impl MeshIndex {
             barycentric,
             distance: d2.sqrt(),
         })
+    }
+
+    /// Distance from `p` to primitive `i` (metres): an upper bound on [`closest`](Self::closest)'s.
+    pub fn distance_to(&self, i: usize, p: Vec3) -> f32 {
+        self.prim_distance2(i, p).0.sqrt()
     }
 
     fn prim_distance2(&self, i: usize, p: Vec3) -> (f32, [f32; 3]) {

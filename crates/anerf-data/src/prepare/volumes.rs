@@ -80,10 +80,18 @@ pub fn compute_volume(
         .enumerate()
         .for_each(|(i, slab)| {
             for j in 0..dims[1] {
+                // The previous node's nearest primitive bounds this node's distance: searching only within
+                // it prunes most of the hierarchy and gives the same answer.
+                let mut previous: Option<usize> = None;
                 for l in 0..dims[2] {
                     let p = bounds.min + Vec3::new(i as f32, j as f32, l as f32) * grid.voxel;
                     let out = &mut slab[(j * dims[2] + l) * channels..][..channels];
-                    let c = index.closest(p).expect("a body has vertices");
+                    let bound = previous.map_or(f32::INFINITY, |n| index.distance_to(n, p));
+                    let c = index
+                        .closest_within(p, bound)
+                        .or_else(|| index.closest(p))
+                        .expect("a body has vertices");
+                    previous = Some(c.index);
                     let verts: [usize; 3] = match method {
                         NearestMethod::Surface => faces[c.index].map(|v| v as usize),
                         NearestMethod::Vertex => [c.index; 3],
