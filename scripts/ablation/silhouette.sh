@@ -37,5 +37,7 @@ for edges in ${EDGES:-skip train robust}; do
     [[ " $MASKS " != *" exact "* ]] || variant "exact$TAG-$edges" "$TRAIN_EXACT" --set "train.mask_edges=$edges"
     [[ " $MASKS " != *" noisy "* ]] || variant "masks-$NOISE$TAG-$edges" "$NOISY" --set "train.mask_edges=$edges"
 done
-python3 "$ROOT/scripts/ablation/collect.py" --silhouette \
-    --title "Mask edges ($PRESET, masks off by ≤ $NOISE px)" "${ROWS[@]}" | tee "$OUT/table.md"
+# The title names the noisy masks' size only where a noisy subject was trained.
+TITLE="Mask edges ($PRESET, $BACKDROP"
+[[ " $MASKS " != *" noisy "* ]] || TITLE+=", noisy masks off by ≤ $NOISE px"
+python3 "$ROOT/scripts/ablation/collect.py" --silhouette --title "$TITLE)" "${ROWS[@]}" | tee "$OUT/table.md"
