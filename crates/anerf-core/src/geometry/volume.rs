@@ -10,6 +10,9 @@ use rayon::prelude::*;
 
 use super::Aabb;
 use crate::error::GeometryError;
+use node_set::NodeSet;
+
+mod node_set;
 use crate::kernels::warp::TrilinearGrid;
 
 /// Skinning weights below this are stored as zeros. Body models' weights that fall off smoothly leave
@@ -340,10 +343,25 @@ struct HostVolume {
 /// `δ(p) = Σ_k w_k(p) M_k p̃` with the interpolated weights `w(p) = Σ_c λ_c w(c)` of `p`'s cell's nodes `c`,
 /// is `Σ_c λ_c W_c p̃` with `W_c = Σ_k w_k(c) M_k`: one trilinear lookup of 12 channels instead of `K`
 /// weights and `K` maps. Each node also holds `(b, ρ)` bounding the field near it (the method's doc).
+///
+/// Only the nodes of the cells of the points the table was made for are blended (`made_for`): a training
+/// render's samples touch a small part of a frame's volume, and blending all of it cost a tenth of a refined
+/// step.
 #[derive(Debug, Clone)]
 pub struct BlendedAffines {
+    made_for: NodeSet,
+    /// Per node of `made_for`, in its order.
     nodes: Vec<[f32; 12]>,
     bounds: Vec<[f32; 2]>,
+}
+
+impl BlendedAffines {
+    /// The row of node `n` (flat index); a panic for a node of no cell the table was made for.
+    fn row(&self, n: usize) -> usize {
+        self.made_for
+            .position(n)
+            .unwrap_or_else(|| panic!("node {n} lies in no cell the blended maps were made for"))
+    }
 }
 
 impl HostVolume {
@@ -413,21 +431,29 @@ impl VolumeTensor {
         self.host.is_near(p, threshold)
     }
 
-    /// `maps` (one `[L | t]` a bone, row-major) blended at every node, `W_n = Σ_k w_k(n) M_k`, with the
+    /// `maps` (one `[L | t]` a bone, row-major) blended at the nodes of the cells holding `points` (the
+    /// volume's frame, metres; outside the box, the border cell they read), `W_n = Σ_k w_k(n) M_k`, with the
     /// node's bound on the field: between a point `p` of a cell and any of its nodes lie at most the cell's
     /// diagonal `h` and the clamp's offset `e = |p − p̄|` (`p̄` is `p` clamped into the box), so
     /// `|W_c p̃| ≤ b_c + ρ_c e` with `b_c = |W_c x̃_c| + ‖L(W_c)‖_F h` and `ρ_c = ‖L(W_c)‖_F`, and
-    /// `|δ(p)| ≤ Σ_c λ_c (b_c + ρ_c e)`. Bones of zero weight at a node cost nothing there.
-    pub fn blend_affines(&self, maps: &[[f32; 12]]) -> BlendedAffines {
+    /// `|δ(p)| ≤ Σ_c λ_c (b_c + ρ_c e)`. Bones of zero weight at a node cost nothing there. The table answers
+    /// [`Self::displacement`] and [`Self::is_near_displaced`] at `points` and at any point of their cells.
+    pub fn blend_affines(&self, maps: &[[f32; 12]], points: &[Vec3]) -> BlendedAffines {
         let v = &self.host.volume;
         assert_eq!(maps.len(), v.num_joints, "one map a bone");
+        let made_for = NodeSet::collect(
+            v.data.len() / v.channels(),
+            points
+                .par_iter()
+                .flat_map_iter(|&p| v.corners(p).into_iter().map(|(idx, _)| v.node_index(idx))),
+        );
         let diagonal = v.spacing().length();
         let plane = v.dims[1] * v.dims[2];
-        let (nodes, bounds) = v
-            .data
-            .par_chunks_exact(v.channels())
-            .enumerate()
-            .map(|(n, node)| {
+        let (nodes, bounds) = made_for
+            .members()
+            .into_par_iter()
+            .map(|n| {
+                let node = &v.data[n * v.channels()..(n + 1) * v.channels()];
                 let mut blended = [0.0f32; 12];
                 for (w, map) in node.iter().zip(maps).filter(|(w, _)| **w != 0.0) {
                     for (b, m) in blended.iter_mut().zip(map) {
@@ -447,7 +473,11 @@ impl VolumeTensor {
                 (blended, bound)
             })
             .unzip();
-        BlendedAffines { nodes, bounds }
+        BlendedAffines {
+            made_for,
+            nodes,
+            bounds,
+        }
     }
 
     /// The blended field `δ(p)` at a point of the volume's frame (metres): the trilinear blend of the nodes'
@@ -456,7 +486,7 @@ impl VolumeTensor {
         let mut m = [0.0f32; 12];
         self.host
             .volume
-            .blend_rows(p, &mut m, |n| &affines.nodes[n][..]);
+            .blend_rows(p, &mut m, |n| &affines.nodes[affines.row(n)][..]);
         transform_point(&m, p)
     }
 
@@ -468,7 +498,7 @@ impl VolumeTensor {
         let host = &*self.host;
         let v = &host.volume;
         assert_eq!(
-            affines.bounds.len(),
+            affines.made_for.nodes(),
             v.data.len() / v.channels(),
             "affines of this volume"
         );
@@ -478,7 +508,7 @@ impl VolumeTensor {
             .cell_corners(base, frac)
             .iter()
             .map(|(idx, w)| {
-                let [b, r] = affines.bounds[v.node_index(*idx)];
+                let [b, r] = affines.bounds[affines.row(v.node_index(*idx))];
                 w * (b + r * outside)
             })
             .sum();
@@ -758,7 +788,24 @@ pub(crate) mod tests {
                 })
             })
             .collect();
-        let affines = host.blend_affines(&maps);
+        let points: Vec<Vec3> = (0..20_000)
+            .map(|_| {
+                Vec3::new(
+                    rng.random_range(-0.35..0.4),
+                    rng.random_range(-0.9..0.9),
+                    rng.random_range(-0.3..0.35),
+                )
+            })
+            .collect();
+        // Made for the points, as culling makes it; for a few of them (a part of the nodes); for every node.
+        let affines = host.blend_affines(&maps, &points);
+        let few = host.blend_affines(&maps, &points[..100]);
+        let everywhere: Vec<Vec3> = (0..14 * 33 * 12)
+            .map(|n| v.node_position(n / (33 * 12), n / 12 % 33, n % 12))
+            .collect();
+        let whole = host.blend_affines(&maps, &everywhere);
+        assert_eq!(whole.nodes.len(), 14 * 33 * 12);
+        assert!(few.nodes.len() <= 800, "{} nodes", few.nodes.len());
         let displaced = |p: Vec3| {
             let w = v.sample(p);
             p + (0..3)
@@ -766,18 +813,19 @@ pub(crate) mod tests {
                 .sum::<Vec3>()
         };
         let (mut near, mut far, mut unsettled) = (0, 0, 0);
-        let points = 20_000;
-        for _ in 0..points {
-            let p = Vec3::new(
-                rng.random_range(-0.35..0.4),
-                rng.random_range(-0.9..0.9),
-                rng.random_range(-0.3..0.35),
-            );
+        for (i, &p) in points.iter().enumerate() {
             let q = displaced(p);
-            let blended = p + host.displacement(&affines, p);
+            let delta = host.displacement(&affines, p);
+            let blended = p + delta;
             assert!((blended - q).length() < 1e-6, "{p}: {blended} against {q}");
             let expected = host.is_near(q, 0.05);
             assert_eq!(host.is_near_displaced(p, 0.05, &affines), expected, "{p}");
+            // The same bits from a table of a part of the volume, or of all of it.
+            let tables: &[&BlendedAffines] = if i < 100 { &[&few, &whole] } else { &[&whole] };
+            for t in tables {
+                assert_eq!(host.displacement(t, p), delta, "{p}");
+                assert_eq!(host.is_near_displaced(p, 0.05, t), expected, "{p}");
+            }
             let d = v.distance_at(p);
             let slack = host.host.lipschitz * (q - p).length();
             unsettled += usize::from((d - 0.05).abs() < slack);

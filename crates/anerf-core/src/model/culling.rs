@@ -75,10 +75,11 @@ pub struct HostWarp {
 }
 
 impl HostWarp {
-    /// The warp's displacement field on `volume`'s nodes: `Σ_k w_k (D_k − I)` blended at each node by the
-    /// prior weights there, with its bound ([`VolumeTensor::blend_affines`]).
-    fn blend(&self, volume: &VolumeTensor) -> BlendedAffines {
-        volume.blend_affines(&self.rows)
+    /// The warp's displacement field on the nodes of `volume` around `points` (pose space, metres):
+    /// `Σ_k w_k (D_k − I)` blended at each node by the prior weights there, with its bound
+    /// ([`VolumeTensor::blend_affines`]).
+    fn blend(&self, volume: &VolumeTensor, points: &[Vec3]) -> BlendedAffines {
+        volume.blend_affines(&self.rows, points)
     }
 }
 
@@ -159,22 +160,25 @@ pub fn cull_samples(
     let rotation_t = global.rotation().transpose();
     let s = rays.samples;
     let ray_vec = |v: &[f32], r: usize| Vec3::from_slice(&v[3 * r..3 * r + 3]);
-    let pose = |i: usize| {
-        let r = i / s;
-        rotation_t
-            * (ray_vec(rays.origins, r) + ray_vec(rays.directions, r) * rays.depths[i] - global.th)
-    };
+    let pose: Vec<Vec3> = (0..rays.depths.len())
+        .into_par_iter()
+        .map(|i| {
+            let r = i / s;
+            rotation_t
+                * (ray_vec(rays.origins, r) + ray_vec(rays.directions, r) * rays.depths[i]
+                    - global.th)
+        })
+        .collect();
     // Where the sample's distance is measured: where the given body has its point.
-    let affines = warp.map(|w| w.blend(volume));
+    let affines = warp.map(|w| w.blend(volume, &pose));
     let measured = |p: Vec3| match &affines {
         Some(a) => p + volume.displacement(a, p),
         None => p,
     };
-    let n = rays.depths.len();
-    let mut near: Vec<(i64, Vec3)> = (0..n)
-        .into_par_iter()
-        .filter_map(|i| {
-            let p = pose(i);
+    let mut near: Vec<(i64, Vec3)> = pose
+        .par_iter()
+        .enumerate()
+        .filter_map(|(i, &p)| {
             let near = match &affines {
                 Some(a) => volume.is_near_displaced(p, threshold, a),
                 None => volume.is_near(p, threshold),
@@ -182,14 +186,14 @@ pub fn cull_samples(
             near.then_some((i as i64, p))
         })
         .collect();
-    if near.is_empty() && n > 0 {
-        let distance: Vec<f32> = (0..n)
-            .into_par_iter()
-            .map(|i| volume.distance_at(measured(pose(i))))
+    if near.is_empty() && !pose.is_empty() {
+        let distance: Vec<f32> = pose
+            .par_iter()
+            .map(|&p| volume.distance_at(measured(p)))
             .collect();
         near = surviving_indices(&distance, threshold)
             .into_iter()
-            .map(|i| (i, pose(i as usize)))
+            .map(|i| (i, pose[i as usize]))
             .collect();
     }
     let (index, points): (Vec<i64>, Vec<Vec3>) = near.into_iter().unzip();
