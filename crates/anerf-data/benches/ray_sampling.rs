@@ -8,7 +8,7 @@
 use std::path::PathBuf;
 
 use anerf_data::sampler::{box_mask, ImageView};
-use anerf_data::{MaskEdges, PreparedSubject, RaySampler, SamplerOptions};
+use anerf_data::{ImageCache, MaskEdges, PreparedSubject, RaySampler, SamplerOptions, StepImages};
 use anerf_testing::report_ms;
 
 /// Timed repetitions of each measurement, after one untimed one.
@@ -51,7 +51,36 @@ fn main() {
             let images = sampler
                 .pick_step(&ids, &subject.views, frames, views)
                 .expect("enough frames and views");
-            sampler.sample_step(&subject, None, &images).expect("rays");
+            sampler
+                .sample_step(&subject, None, &images, &ImageCache::none())
+                .expect("rays");
+        },
+    );
+    // The same with every image kept, as training keeps them (`ImageCache::for_training`).
+    let kept = ImageCache::for_training();
+    for &frame in &ids {
+        let all = [StepImages {
+            frame,
+            views: subject.views.clone(),
+        }];
+        sampler
+            .sample_step(&subject, None, &all, &kept)
+            .expect("rays");
+    }
+    let (held, bytes) = kept.held();
+    report_ms(
+        &format!(
+            "step of {frames} frames × {views} views, {held} images kept ({} MB)",
+            bytes >> 20
+        ),
+        REPEATS,
+        || {
+            let images = sampler
+                .pick_step(&ids, &subject.views, frames, views)
+                .expect("enough frames and views");
+            sampler
+                .sample_step(&subject, None, &images, &kept)
+                .expect("rays");
         },
     );
     let (frame, view) = (ids[0], subject.views[0]);
@@ -75,7 +104,7 @@ fn main() {
                 &ImageView {
                     camera,
                     bounds: &bounds,
-                    image: &image,
+                    image: (&image).into(),
                     mask: &mask,
                     edge: Some(&edge),
                     background: None,

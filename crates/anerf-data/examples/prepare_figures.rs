@@ -123,7 +123,7 @@ fn main() {
     let view = ImageView {
         camera: &work,
         bounds: &bounds,
-        image: &small,
+        image: (&small).into(),
         mask: &m,
         edge: None,
         background: None,

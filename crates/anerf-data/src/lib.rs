@@ -23,8 +23,9 @@ pub use info::{inspect, InspectOptions, Report};
 pub use loaders::{load, load_h36m, load_zju_mocap, LoadOptions};
 pub use prepare::{prepare, prepare_with, PrepareOptions, PrepareProgress, PreparedSubject};
 pub use sampler::{
-    draw_step, image_rays, BackgroundPlate, Backgrounds, DrawError, DrawnStep, ImageRays,
-    ImageView, MaskEdges, Prefetch, RaySampler, SamplerOptions, StepImages, StepPlan,
+    draw_step, image_rays, BackgroundPlate, Backgrounds, DrawError, DrawnStep, ImageCache,
+    ImageRays, ImageView, MaskEdges, Pixels, Prefetch, RaySampler, SamplerOptions, StepImages,
+    StepPlan,
 };
 pub use subject::{
     BodyModel, DatasetKind, FittedPose, FrameRecord, PosedVertices, SkinningWeights, Subject,

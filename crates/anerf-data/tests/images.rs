@@ -75,3 +75,24 @@ fn a_flipped_bit_in_a_png_and_a_file_of_another_kind_are_refused() {
         "{msg}"
     );
 }
+
+/// An 8-bit PNG read as bytes gives, through `byte_channel`, the channels `read_rgb` gives, for every value:
+/// the training cache keeps bytes and draws the same colours as a fresh read.
+#[test]
+fn bytes_read_back_as_the_float_readers_channels() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("ramp.png");
+    let ramp = image::RgbImage::from_fn(256, 2, |x, y| {
+        let v = x as u8;
+        image::Rgb([v, v.wrapping_mul(7), if y == 0 { 255 - v } else { v / 3 }])
+    });
+    ramp.save(&path).unwrap();
+    let (bytes, floats) = (
+        images::read_rgb8(&path).unwrap(),
+        images::read_rgb(&path).unwrap(),
+    );
+    assert_eq!(bytes, ramp);
+    for (b, f) in bytes.as_raw().iter().zip(floats.as_raw()) {
+        assert_eq!(images::byte_channel(*b).to_bits(), f.to_bits(), "{b}");
+    }
+}

@@ -8,9 +8,9 @@ use anerf_data::prepare::edge_band;
 use anerf_data::prepare::{FrameSelection, ImageScale};
 use anerf_data::sampler::box_mask;
 use anerf_data::{
-    draw_step, image_rays, load_zju_mocap, prepare, BackgroundPlate, Backgrounds, LoadOptions,
-    MaskEdges, Prefetch, PrepareOptions, PreparedSubject, RaySampler, SamplerOptions, StepImages,
-    StepPlan,
+    draw_step, image_rays, load_zju_mocap, prepare, BackgroundPlate, Backgrounds, ImageCache,
+    LoadOptions, MaskEdges, Prefetch, PrepareOptions, PreparedSubject, RaySampler, SamplerOptions,
+    StepImages, StepPlan,
 };
 use anerf_testing::fixture;
 use image::{GrayImage, Rgb32FImage};
@@ -270,7 +270,9 @@ fn sampling_is_deterministic_and_resumes_from_serialised_state() {
         (0..n)
             .map(|_| {
                 let images = sampler.pick_step(&frames, &views, 2, 2).unwrap();
-                sampler.sample_step(&p, None, &images).unwrap()
+                sampler
+                    .sample_step(&p, None, &images, &ImageCache::none())
+                    .unwrap()
             })
             .collect::<Vec<_>>()
     };
@@ -400,7 +402,9 @@ fn several_frames_a_step_draw_distinct_frames_and_split_the_rays_evenly() {
         assert_eq!(images.len(), 2);
         assert_ne!(images[0].frame, images[1].frame, "frames repeat");
         firsts.insert(images[0].frame);
-        let rays = two.sample_step(&p, None, &images).unwrap();
+        let rays = two
+            .sample_step(&p, None, &images, &ImageCache::none())
+            .unwrap();
         assert_eq!(rays.iter().map(|r| r.len()).collect::<Vec<_>>(), [51, 50]);
         for (step, rays) in images.iter().zip(&rays) {
             // The frame's share, split over its two views: the first view's rays leave its camera.
@@ -420,9 +424,54 @@ fn several_frames_a_step_draw_distinct_frames_and_split_the_rays_evenly() {
     assert!(one.pick_step(&[], &views, 1, 1).is_none());
 }
 
-/// Drawing ahead changes nothing: the steps a [`Prefetch`] returns are the ones `draw_step` draws from
-/// each state in turn, also after the caller's sampler jumps to another state (a resume), and a plan that
-/// cannot be drawn is an error.
+/// Kept images draw the rays that fresh reads draw, under each treatment of the band (whose pools differ, so
+/// the cache keys on it); the cache keeps every image drawn within its budget and none beyond it.
+#[test]
+fn kept_images_draw_the_rays_of_fresh_reads() {
+    let dir = tempfile::tempdir().unwrap();
+    let p = prepared(dir.path());
+    let frames = [FrameId(0), FrameId(1)];
+    let views: Vec<ViewId> = p.views.clone();
+    let kept = ImageCache::for_training();
+    let one_image = ImageCache::new(1);
+    let mut drawn = std::collections::HashSet::new();
+    for mask_edges in [MaskEdges::Skip, MaskEdges::Train] {
+        let options = SamplerOptions {
+            rays: 64,
+            mask_edges,
+            ..SamplerOptions::default()
+        };
+        let (mut fresh, mut cached, mut small) = (
+            RaySampler::new(5, options.clone()),
+            RaySampler::new(5, options.clone()),
+            RaySampler::new(5, options),
+        );
+        for step in 0..8 {
+            let images = fresh.pick_step(&frames, &views, 2, 2).unwrap();
+            assert_eq!(cached.pick_step(&frames, &views, 2, 2).unwrap(), images);
+            assert_eq!(small.pick_step(&frames, &views, 2, 2).unwrap(), images);
+            for step in &images {
+                drawn.extend(step.views.iter().map(|&v| (step.frame, v, mask_edges)));
+            }
+            let expected = fresh
+                .sample_step(&p, None, &images, &ImageCache::none())
+                .unwrap();
+            let through_cache = cached.sample_step(&p, None, &images, &kept).unwrap();
+            assert_eq!(through_cache, expected, "step {step}, {mask_edges:?}");
+            let beyond_budget = small.sample_step(&p, None, &images, &one_image).unwrap();
+            assert_eq!(beyond_budget, expected, "step {step}, {mask_edges:?}");
+        }
+    }
+    // Every image drawn, once per treatment of the band.
+    let (images, bytes) = kept.held();
+    assert_eq!(images, drawn.len());
+    assert!(bytes > images * 2 * p.cameras[0].width as usize * p.cameras[0].height as usize);
+    assert_eq!(one_image.held(), (0, 0), "an image is larger than a byte");
+}
+
+/// Drawing ahead changes nothing: the steps a [`Prefetch`] returns (through the images it keeps) are the
+/// ones `draw_step` draws from each state in turn reading every image afresh, also after the caller's sampler
+/// jumps to another state (a resume), and a plan that cannot be drawn is an error.
 #[test]
 fn prefetched_steps_are_the_sequential_draws() {
     let dir = tempfile::tempdir().unwrap();
@@ -450,7 +499,7 @@ fn prefetched_steps_are_the_sequential_draws() {
             sequential = sampler.clone();
         }
         let ahead = prefetch.next(&sampler).unwrap();
-        let direct = draw_step(&p, sequential.clone(), &plan).unwrap();
+        let direct = draw_step(&p, sequential.clone(), &plan, &ImageCache::none()).unwrap();
         assert_eq!(ahead.images, direct.images, "step {step}");
         assert_eq!(ahead.rays, direct.rays, "step {step}");
         assert_eq!(ahead.sampler, direct.sampler, "step {step}");

@@ -5,7 +5,7 @@
 use std::io::Cursor;
 use std::path::Path;
 
-use image::{DynamicImage, GrayImage, ImageFormat, ImageReader, Rgb32FImage};
+use image::{DynamicImage, GrayImage, ImageFormat, ImageReader, Rgb32FImage, RgbImage};
 
 use super::image_structure;
 use crate::error::DataError;
@@ -40,6 +40,16 @@ pub fn decode_bytes(bytes: &[u8]) -> Result<DynamicImage, image::ImageError> {
 /// inverse of [`read_rgb`]'s `/ 255` on 8-bit values.
 pub fn channel_byte(c: f32) -> u8 {
     (c.clamp(0.0, 1.0) * 255.0).round() as u8
+}
+
+/// An 8-bit value as a channel in `[0, 1]`: what [`read_rgb`] makes of an 8-bit file's values.
+pub fn byte_channel(b: u8) -> f32 {
+    f32::from(b) / 255.0
+}
+
+/// An RGB image as 8-bit values (a deeper file's rounded down to 8 bits): a quarter of [`read_rgb`]'s memory.
+pub fn read_rgb8(path: &Path) -> Result<RgbImage, DataError> {
+    Ok(decode(path)?.into_rgb8())
 }
 
 /// An RGB image with channels in `[0, 1]` (8-bit values / 255, as the reference reads them).

@@ -19,7 +19,7 @@ use anerf_core::geometry::{
 };
 use anerf_core::{FrameId, ViewId};
 use glam::Vec3;
-use image::{GrayImage, Rgb32FImage};
+use image::{GrayImage, Rgb32FImage, RgbImage};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
@@ -240,7 +240,16 @@ impl PreparedSubject {
 
     /// Undistorted image at the working resolution, channels in `[0, 1]`.
     pub fn image(&self, frame: FrameId, view: ViewId) -> Result<Rgb32FImage, DataError> {
-        images::read_rgb(&self.dir.join("images").join(image_name(frame.0, view.0)))
+        images::read_rgb(&self.image_path(frame, view))
+    }
+
+    /// [`Self::image`] as the cache stores it, 8-bit values (channel = value / 255).
+    pub fn image_rgb8(&self, frame: FrameId, view: ViewId) -> Result<RgbImage, DataError> {
+        images::read_rgb8(&self.image_path(frame, view))
+    }
+
+    fn image_path(&self, frame: FrameId, view: ViewId) -> PathBuf {
+        self.dir.join("images").join(image_name(frame.0, view.0))
     }
 
     /// Undistorted mask at the working resolution: 1 = body, 0 = background.

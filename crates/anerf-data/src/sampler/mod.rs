@@ -3,11 +3,13 @@
 //! Pixels are addressed by integer coordinates (column `u`, row `v`), and rays go through them in the
 //! camera's [`PixelConvention`] (the reference: integer positions, no +0.5). Boxes are world space, metres.
 
+use std::sync::Arc;
+
 use anerf_core::geometry::{Aabb, Camera, PixelConvention};
 use anerf_core::render::HostRays;
 use anerf_core::{FrameId, ViewId};
 use glam::Vec2;
-use image::{GrayImage, Rgb32FImage};
+use image::{GrayImage, Rgb32FImage, RgbImage};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use rayon::prelude::*;
@@ -15,18 +17,21 @@ use serde::{Deserialize, Serialize};
 use thiserror::Error;
 
 use crate::error::DataError;
+use crate::formats::images::byte_channel;
 use crate::prepare::{edge_band, PreparedSubject};
 
 mod background;
+mod cache;
 mod prefetch;
 
 pub use background::{BackgroundPlate, Backgrounds};
+pub use cache::ImageCache;
 pub use prefetch::{draw_step, DrawError, DrawnStep, Prefetch, StepPlan};
 
 /// What training draws from the band `dilate(mask) − erode(mask)` of a 5×5 kernel around the mask's edge
 /// (the reference's `erode_edge`), marked on the full-resolution mask by `prepare` ([`ImageView::edge`]):
 /// the pixels a real capture's mask is most often wrong about.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Default, Serialize, Deserialize)]
 #[serde(rename_all = "lowercase")]
 pub enum MaskEdges {
     /// Drawn like every pixel, with the mask's colour and label: for exact masks (synthetic subjects).
@@ -138,13 +143,52 @@ pub enum SamplerError {
 pub struct ImageView<'a> {
     pub camera: &'a Camera,
     pub bounds: &'a Aabb,
-    pub image: &'a Rgb32FImage,
+    pub image: Pixels<'a>,
     pub mask: &'a GrayImage,
     /// The mask-edge band (row-major), as prepared from the full-resolution mask; `None`: computed from
     /// `mask` at this resolution.
     pub edge: Option<&'a [bool]>,
     /// The camera's static background, under [`MaskEdges::Backdrop`].
     pub background: Option<&'a BackgroundPlate>,
+}
+
+/// An RGB image's pixels, as channels in `[0, 1]` or as 8-bit values (channel = value / 255).
+#[derive(Debug, Clone, Copy)]
+pub enum Pixels<'a> {
+    Float(&'a Rgb32FImage),
+    Byte(&'a RgbImage),
+}
+
+impl Pixels<'_> {
+    /// Width and height.
+    pub fn dimensions(&self) -> (u32, u32) {
+        match self {
+            Pixels::Float(image) => image.dimensions(),
+            Pixels::Byte(image) => image.dimensions(),
+        }
+    }
+
+    /// The channels in `[0, 1]` of pixel `i` (row-major).
+    pub fn rgb(&self, i: usize) -> [f32; 3] {
+        match self {
+            Pixels::Float(image) => image.as_raw()[3 * i..3 * i + 3]
+                .try_into()
+                .expect("3 channels"),
+            Pixels::Byte(image) => std::array::from_fn(|c| byte_channel(image.as_raw()[3 * i + c])),
+        }
+    }
+}
+
+impl<'a> From<&'a Rgb32FImage> for Pixels<'a> {
+    fn from(image: &'a Rgb32FImage) -> Self {
+        Pixels::Float(image)
+    }
+}
+
+impl<'a> From<&'a RgbImage> for Pixels<'a> {
+    fn from(image: &'a RgbImage) -> Self {
+        Pixels::Byte(image)
+    }
 }
 
 /// One image set of a training step: a frame and the views its rays are drawn from.
@@ -226,9 +270,7 @@ impl RaySampler {
         // it), black elsewhere.
         let gt = |i: usize| -> [f32; 3] {
             if on_body[i] != 0 || behind(i).is_some() {
-                view.image.as_raw()[3 * i..3 * i + 3]
-                    .try_into()
-                    .expect("3 channels")
+                view.image.rgb(i)
             } else {
                 [0.0; 3]
             }
@@ -307,12 +349,13 @@ impl RaySampler {
 
     /// Draws one step's `options.rays` rays from `images` ([`Self::pick_step`]): split over the frames as
     /// evenly as whole rays allow (the first take the remainder), each frame's share over its views as
-    /// [`Self::sample_prepared`] splits it.
+    /// [`Self::sample_prepared`] splits it. The images are read through `cache` (the same rays as without).
     pub fn sample_step(
         &mut self,
         subject: &PreparedSubject,
         backgrounds: Option<&Backgrounds>,
         images: &[StepImages],
+        cache: &ImageCache,
     ) -> Result<Vec<HostRays>, SamplerError> {
         let total = self.options.rays;
         let shares: Vec<(FrameId, &[ViewId], usize)> = images
@@ -326,7 +369,7 @@ impl RaySampler {
                 )
             })
             .collect();
-        self.sample_frames(subject, backgrounds, &shares)
+        self.sample_frames(subject, backgrounds, &shares, cache)
     }
 
     /// Reads `views` of one frame of a prepared subject and draws `rays` rays from them, split as evenly
@@ -340,18 +383,20 @@ impl RaySampler {
         views: &[ViewId],
         rays: usize,
     ) -> Result<HostRays, SamplerError> {
-        let mut rays = self.sample_frames(subject, backgrounds, &[(frame, views, rays)])?;
+        let shares = [(frame, views, rays)];
+        let mut rays = self.sample_frames(subject, backgrounds, &shares, &ImageCache::none())?;
         Ok(rays.pop().expect("one frame"))
     }
 
-    /// `(frame, views, rays)` shares drawn as [`Self::sample_prepared`] draws each: the images are read and
-    /// their pools found in parallel (nothing random happens there), then the rays are drawn image after
-    /// image in order, so the stream is the one a sequential loop draws.
+    /// `(frame, views, rays)` shares drawn as [`Self::sample_prepared`] draws each: the images are read (or
+    /// taken from `cache`) and their pools found in parallel (nothing random happens there), then the rays are
+    /// drawn image after image in order, so the stream is the one a sequential loop draws.
     fn sample_frames(
         &mut self,
         subject: &PreparedSubject,
         backgrounds: Option<&Backgrounds>,
         shares: &[(FrameId, &[ViewId], usize)],
+        cache: &ImageCache,
     ) -> Result<Vec<HostRays>, SamplerError> {
         let mut jobs = Vec::new();
         for &(frame, views, rays) in shares {
@@ -366,11 +411,13 @@ impl RaySampler {
             }
         }
         let mask_edges = self.options.mask_edges;
-        let read: Vec<ReadImage> = jobs
+        let read: Vec<Arc<ReadImage>> = jobs
             .par_iter()
             .map(|&(frame, view, bounds, _)| {
-                let background = backgrounds.and_then(|b| b.plate(view));
-                ReadImage::new(subject, frame, view, bounds, mask_edges, background)
+                cache.get_or_read((frame, view, mask_edges), || {
+                    let background = backgrounds.and_then(|b| b.plate(view));
+                    ReadImage::new(subject, frame, view, bounds, mask_edges, background)
+                })
             })
             .collect::<Result<_, _>>()?;
         let mut drawn = read.iter().zip(&jobs).map(|(image, job)| {
@@ -429,7 +476,7 @@ impl Pools {
 struct ReadImage {
     view: ViewId,
     bounds: Aabb,
-    image: Rgb32FImage,
+    image: RgbImage,
     mask: GrayImage,
     edge: Vec<bool>,
     pools: Pools,
@@ -444,13 +491,13 @@ impl ReadImage {
         mask_edges: MaskEdges,
         background: Option<&BackgroundPlate>,
     ) -> Result<Self, SamplerError> {
-        let image = subject.image(frame, view)?;
+        let image = subject.image_rgb8(frame, view)?;
         let (mask, edge) = subject.mask_and_edge(frame, view)?;
         let camera = &subject.cameras[view.0];
         let view_of = ImageView {
             camera,
             bounds: &bounds,
-            image: &image,
+            image: (&image).into(),
             mask: &mask,
             edge: Some(&edge),
             background,
@@ -467,6 +514,14 @@ impl ReadImage {
         })
     }
 
+    /// The bytes it holds, roughly: what [`ImageCache`] counts against its budget.
+    fn bytes(&self) -> usize {
+        self.image.as_raw().len()
+            + self.mask.as_raw().len()
+            + self.edge.len()
+            + 4 * (self.pools.body.len() + self.pools.boxed.len())
+    }
+
     fn view<'a>(
         &'a self,
         subject: &'a PreparedSubject,
@@ -475,7 +530,7 @@ impl ReadImage {
         ImageView {
             camera: &subject.cameras[self.view.0],
             bounds: &self.bounds,
-            image: &self.image,
+            image: (&self.image).into(),
             mask: &self.mask,
             edge: Some(&self.edge),
             background: backgrounds.and_then(|b| b.plate(self.view)),
@@ -672,7 +727,7 @@ pub fn image_rays(
             check_sizes(&ImageView {
                 camera,
                 bounds,
-                image: img,
+                image: img.into(),
                 mask,
                 edge: None,
                 background: None,

@@ -10,7 +10,7 @@ use std::thread::JoinHandle;
 use anerf_core::render::HostRays;
 use anerf_core::{FrameId, ViewId};
 
-use super::{Backgrounds, RaySampler, SamplerError, StepImages};
+use super::{Backgrounds, ImageCache, RaySampler, SamplerError, StepImages};
 use crate::prepare::PreparedSubject;
 
 /// What a step draws from besides the sampler's state: the training frames and views, how many of each
@@ -47,11 +47,13 @@ pub enum DrawError {
     },
 }
 
-/// One step drawn from `sampler`'s state: [`RaySampler::pick_step`], then [`RaySampler::sample_step`].
+/// One step drawn from `sampler`'s state: [`RaySampler::pick_step`], then [`RaySampler::sample_step`]
+/// through `cache`.
 pub fn draw_step(
     subject: &PreparedSubject,
     mut sampler: RaySampler,
     plan: &StepPlan,
+    cache: &ImageCache,
 ) -> Result<DrawnStep, DrawError> {
     let images = sampler
         .pick_step(
@@ -61,7 +63,7 @@ pub fn draw_step(
             plan.views_per_step,
         )
         .ok_or_else(|| DrawError::Plan(plan.clone()))?;
-    match sampler.sample_step(subject, plan.backgrounds.as_deref(), &images) {
+    match sampler.sample_step(subject, plan.backgrounds.as_deref(), &images, cache) {
         Ok(rays) => Ok(DrawnStep {
             images,
             rays,
@@ -72,10 +74,12 @@ pub fn draw_step(
 }
 
 /// Draws steps one ahead on a background thread: [`Self::next`] returns the step that follows a sampler
-/// state, exactly as [`draw_step`] would, and starts drawing the one after.
+/// state, exactly as [`draw_step`] would, and starts drawing the one after. The images it reads are kept
+/// ([`ImageCache::for_training`]).
 pub struct Prefetch {
     subject: Arc<PreparedSubject>,
     plan: StepPlan,
+    cache: Arc<ImageCache>,
     /// The draw under way and the sampler state it started from.
     pending: Option<(RaySampler, JoinHandle<Result<DrawnStep, DrawError>>)>,
 }
@@ -85,6 +89,7 @@ impl Prefetch {
         Self {
             subject,
             plan,
+            cache: Arc::new(ImageCache::for_training()),
             pending: None,
         }
     }
@@ -100,14 +105,15 @@ impl Prefetch {
         });
         let drawn = match ahead {
             Some(drawn) => drawn?,
-            None => draw_step(&self.subject, sampler.clone(), &self.plan)?,
+            None => draw_step(&self.subject, sampler.clone(), &self.plan, &self.cache)?,
         };
-        let (subject, plan, start) = (
+        let (subject, plan, cache, start) = (
             Arc::clone(&self.subject),
             self.plan.clone(),
+            Arc::clone(&self.cache),
             drawn.sampler.clone(),
         );
-        let handle = std::thread::spawn(move || draw_step(&subject, start, &plan));
+        let handle = std::thread::spawn(move || draw_step(&subject, start, &plan, &cache));
         self.pending = Some((drawn.sampler.clone(), handle));
         Ok(drawn)
     }
