@@ -44,45 +44,31 @@ fn main() {
         subject.cameras[0].width,
         subject.cameras[0].height
     );
-    report_ms(
-        &format!("step of {frames} frames × {views} views"),
-        REPEATS,
-        || {
+    // A step reading every image afresh, then with every image kept, as training keeps them.
+    let step_ms = |label: &str, sampler: &mut RaySampler, cache: &ImageCache| {
+        report_ms(label, REPEATS, || {
             let images = sampler
                 .pick_step(&ids, &subject.views, frames, views)
                 .expect("enough frames and views");
             sampler
-                .sample_step(&subject, None, &images, &ImageCache::none())
+                .sample_step(&subject, None, &images, cache)
                 .expect("rays");
-        },
-    );
-    // The same with every image kept, as training keeps them (`ImageCache::for_training`).
+        })
+    };
+    let label = format!("step of {frames} frames × {views} views");
+    step_ms(&label, &mut sampler, &ImageCache::none());
     let kept = ImageCache::for_training();
     for &frame in &ids {
         let all = [StepImages {
             frame,
             views: subject.views.clone(),
         }];
-        sampler
-            .sample_step(&subject, None, &all, &kept)
-            .expect("rays");
+        let mut warm = sampler.clone();
+        warm.sample_step(&subject, None, &all, &kept).expect("rays");
     }
     let (held, bytes) = kept.held();
-    report_ms(
-        &format!(
-            "step of {frames} frames × {views} views, {held} images kept ({} MB)",
-            bytes >> 20
-        ),
-        REPEATS,
-        || {
-            let images = sampler
-                .pick_step(&ids, &subject.views, frames, views)
-                .expect("enough frames and views");
-            sampler
-                .sample_step(&subject, None, &images, &kept)
-                .expect("rays");
-        },
-    );
+    let label = format!("{label}, {held} images kept ({} MB)", bytes >> 20);
+    step_ms(&label, &mut sampler, &kept);
     let (frame, view) = (ids[0], subject.views[0]);
     let camera = &subject.cameras[view.0];
     let bounds = subject.frames[0].bounds;
