@@ -433,7 +433,7 @@ fn kept_images_draw_the_rays_of_fresh_reads() {
     let frames = [FrameId(0), FrameId(1)];
     let views: Vec<ViewId> = p.views.clone();
     let kept = ImageCache::for_training();
-    let one_image = ImageCache::new(1);
+    let one_byte = ImageCache::new(1);
     let mut drawn = std::collections::HashSet::new();
     for mask_edges in [MaskEdges::Skip, MaskEdges::Train] {
         let options = SamplerOptions {
@@ -458,7 +458,7 @@ fn kept_images_draw_the_rays_of_fresh_reads() {
                 .unwrap();
             let through_cache = cached.sample_step(&p, None, &images, &kept).unwrap();
             assert_eq!(through_cache, expected, "step {step}, {mask_edges:?}");
-            let beyond_budget = small.sample_step(&p, None, &images, &one_image).unwrap();
+            let beyond_budget = small.sample_step(&p, None, &images, &one_byte).unwrap();
             assert_eq!(beyond_budget, expected, "step {step}, {mask_edges:?}");
         }
     }
@@ -466,7 +466,7 @@ fn kept_images_draw_the_rays_of_fresh_reads() {
     let (images, bytes) = kept.held();
     assert_eq!(images, drawn.len());
     assert!(bytes > images * 2 * p.cameras[0].width as usize * p.cameras[0].height as usize);
-    assert_eq!(one_image.held(), (0, 0), "an image is larger than a byte");
+    assert_eq!(one_byte.held(), (0, 0), "an image is larger than a byte");
 }
 
 /// Drawing ahead changes nothing: the steps a [`Prefetch`] returns (through the images it keeps) are the

@@ -10,10 +10,10 @@ use rayon::prelude::*;
 
 use super::Aabb;
 use crate::error::GeometryError;
+use crate::kernels::warp::TrilinearGrid;
 use node_set::NodeSet;
 
 mod node_set;
-use crate::kernels::warp::TrilinearGrid;
 
 /// Skinning weights below this are stored as zeros. Body models' weights that fall off smoothly leave
 /// values down to subnormal floats (9 % of the synthetic subjects' volume values lie below `1.2e-38`), and

@@ -11,7 +11,8 @@ use anerf_core::{FrameId, ViewId};
 use super::{MaskEdges, ReadImage, SamplerError};
 
 /// How much [`ImageCache::for_training`] keeps, bytes: every training image of a subject like the realistic
-/// one (about 0.6 GB), a third of ZJU-MoCap's 1024² ones; images beyond it are read each time they are drawn.
+/// one (about 0.6 GB); of a larger subject (an image takes about 1.65 MB at 512², four times that at 1024²),
+/// the first ones drawn, and the others are read each time they are drawn.
 pub const TRAINING_IMAGE_BUDGET: usize = 2 << 30;
 
 /// Which image was read, and how its band was treated (the pools depend on it).
