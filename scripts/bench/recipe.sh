@@ -6,12 +6,14 @@
 #   scripts/bench/recipe.sh [work folder (default: target/bench/recipe)]
 #
 # Needs the subject (`anerf synth --preset realistic --out data/synthetic/realistic`) and a release build
-# (`cargo build --release -p anerf`); ANERF=<binary> times another build. Everything it writes stays in the
-# work folder, which must not exist yet (a run folder is never overwritten).
+# (`cargo build --release -p anerf`); ANERF=<binary> times another build. DATA=<subject> times another
+# subject: a subject whose fits are not exact (`anerf synth --preset realistic-exact --pose-noise 2.5`, as a
+# real capture's) trains with pose refinement, as `train --data` does for a capture. Everything it writes
+# stays in the work folder, which must not exist yet (a run folder is never overwritten).
 set -euo pipefail
 cd "$(dirname "$0")/../.."
 anerf="${ANERF:-target/release/anerf}"
-data="data/synthetic/realistic"
+data="${DATA:-data/synthetic/realistic}"
 work="${1:-target/bench/recipe}"
 [[ -x "$anerf" ]] || { echo "no $anerf: cargo build --release -p anerf" >&2; exit 1; }
 [[ -d "$data" ]] || { echo "no $data: anerf synth --preset realistic --out $data" >&2; exit 1; }
