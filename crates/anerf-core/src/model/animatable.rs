@@ -6,7 +6,10 @@ use burn::tensor::IndexingUpdateOp;
 use glam::Vec3;
 
 use super::blend::BlendWeightField;
-use super::culling::{cull_on_device, cull_samples, CorrectionWarp, Culling, SampleRays};
+use super::codes::CodeRows;
+use super::culling::{
+    cull_on_device, cull_samples, CorrectionWarp, Culling, DeviceSurvivors, SampleRays,
+};
 use super::nerf::CanonicalNerf;
 use super::occupancy::OccupancyGrid;
 use super::pose_refinement::PoseRefinement;
@@ -347,11 +350,34 @@ impl AnimatableNerf {
         prior: Tensor<2>,
         code: FrameCode,
     ) -> (Tensor<2>, Option<Tensor<2>>) {
-        let (field, row) = self.frame_field(code);
+        let m = points.dims()[0];
+        self.frames_blend(points, prior, &[(code, m)])
+    }
+
+    /// [`Self::frame_blend`] of several frames' points at once: `codes` gives each consecutive group of
+    /// points its frame. The frames must share a field (all training or all novel-pose frames).
+    fn frames_blend(
+        &self,
+        points: Tensor<2>,
+        prior: Tensor<2>,
+        codes: &[(FrameCode, usize)],
+    ) -> (Tensor<2>, Option<Tensor<2>>) {
+        let (field, _) = self.frame_field(codes[0].0);
+        let rows = codes
+            .iter()
+            .map(|&(code, n)| {
+                let (other, row) = self.frame_field(code);
+                assert!(
+                    std::ptr::eq(field, other),
+                    "one render's frames are all training or all novel-pose frames"
+                );
+                (row, n)
+            })
+            .collect();
         if !self.config.neural_blend_weights {
             return (field.prior_only(prior), None);
         }
-        let residual = field.residual(points, row);
+        let residual = field.residual_of(points, &CodeRows::Groups(rows));
         (
             super::blend::combine(self.config.blend, residual.clone(), prior),
             Some(residual),
@@ -376,7 +402,7 @@ impl AnimatableNerf {
     ) -> ShadedSamples {
         let warped = self.warp(points.clone(), prior, frame);
         let dirs = self.colour_directions(points, dirs, &warped, frame);
-        self.radiance(warped, dirs, frame, canonical)
+        self.radiance(warped, dirs, &CodeRows::One(frame.appearance), canonical)
     }
 
     /// The blend-weight consistency's inputs at `shaded` samples: their observation weights against the
@@ -436,19 +462,20 @@ impl AnimatableNerf {
         }
     }
 
-    /// The canonical NeRF at warped samples seen along colour-head directions `dirs` `[M, 3]`.
+    /// The canonical NeRF at warped samples seen along colour-head directions `dirs` `[M, 3]`, with the
+    /// appearance codes of rows `appearance`.
     fn radiance(
         &self,
         warped: Warped,
         dirs: Tensor<2>,
-        frame: &FrameInputs,
+        appearance: &CodeRows,
         canonical: &CanonicalInputs,
     ) -> ShadedSamples {
         let canonical_points = warped.canonical_points;
         let inside = inside_box(canonical_points.clone(), &canonical.bounds);
         let radiance = self
             .nerf
-            .forward(canonical_points.clone(), dirs, frame.appearance);
+            .forward(canonical_points.clone(), dirs, appearance);
         ShadedSamples {
             density: radiance.density.mask_fill(inside.clone().bool_not(), 0.0),
             rgb: radiance.rgb,
@@ -461,7 +488,7 @@ impl AnimatableNerf {
 
     /// Shades host samples: pose-space points (metres) with world-space unit view directions `[M·3]`. Their
     /// prior weights are read on the host ([`VolumeTensor::weights_at`]) and the samples uploaded, then
-    /// shaded as [`Self::shade_points`] does.
+    /// shaded as [`Self::shade_frames`] does.
     pub(super) fn shade_survivors(
         &self,
         points: &[Vec3],
@@ -471,96 +498,152 @@ impl AnimatableNerf {
     ) -> (Vec<i64>, ShadedSamples) {
         let device = frame.volume.device();
         let m = points.len();
-        let prior = frame.volume.weights_at(points);
-        let dirs = Tensor::from_data(TensorData::new(directions, [m, 3]), &device);
-        self.shade_points(
-            points_tensor(points, &device),
-            prior,
-            dirs,
-            frame,
-            canonical,
-        )
+        let samples = FrameSamples {
+            points: points_tensor(points, &device),
+            prior: frame.volume.weights_at(points),
+            dirs: Tensor::from_data(TensorData::new(directions, [m, 3]), &device),
+        };
+        let mut shaded = self.shade_frames(vec![samples], &[frame], canonical);
+        shaded.pop().expect("one frame")
     }
 
-    /// Shades samples on the device: pose-space points `[M, 3]` (metres) with their prior weights `[M, K]`
-    /// and world-space unit view directions `[M, 3]` are warped and (with an occupancy grid) those in empty
-    /// canonical cells dropped; returns the rows of the given samples that reached the canonical NeRF (all of
-    /// them without a grid; never none) and their shading.
-    fn shade_points(
+    /// Shades the samples of several frames (`samples[f]` of `frames[f]`) on the device, each frame's with
+    /// its bones and codes, the fields once for all of them: the pose-space points are warped and (with an
+    /// occupancy grid) those in empty canonical cells dropped. Per frame, the rows of its samples that reached
+    /// the canonical NeRF (all of them without a grid; never none) and their shading.
+    fn shade_frames(
         &self,
-        points: Tensor<2>,
-        prior: Tensor<2>,
-        dirs: Tensor<2>,
-        frame: &FrameInputs,
+        samples: Vec<FrameSamples>,
+        frames: &[&FrameInputs],
         canonical: &CanonicalInputs,
-    ) -> (Vec<i64>, ShadedSamples) {
-        let device = points.device();
-        let [m, _] = points.dims();
-        let Some(grid) = &self.occupancy else {
-            let rows = (0..m as i64).collect();
-            return (rows, self.shade(points, prior, dirs, frame, canonical));
+    ) -> Vec<(Vec<i64>, ShadedSamples)> {
+        let counts: Vec<usize> = samples.iter().map(|s| s.points.dims()[0]).collect();
+        let codes: Vec<(FrameCode, usize)> =
+            frames.iter().map(|f| f.code).zip(counts.clone()).collect();
+        let (points, priors, dirs): (Vec<_>, Vec<_>, Vec<_>) = samples
+            .into_iter()
+            .map(|s| (s.points, s.prior, s.dirs))
+            .collect();
+        let (weights, residual) =
+            self.frames_blend(cat_rows(points.clone()), cat_rows(priors), &codes);
+        let canonical_points = cat_rows(
+            split_rows(weights.clone(), &counts)
+                .into_iter()
+                .zip(&points)
+                .zip(frames)
+                .map(|((w, p), frame)| frame.bones.inverse(p.clone(), w))
+                .collect(),
+        );
+        let (mut points, mut dirs) = (cat_rows(points), cat_rows(dirs));
+        // The residual's penalty covers every sample that reached the blend-weight field.
+        let residuals = match residual {
+            Some(r) => split_rows(r, &counts).into_iter().map(Some).collect(),
+            None => vec![None; counts.len()],
         };
-        let warped = self.warp(points.clone(), prior, frame);
-        let mut rows = grid.occupied_rows(&to_host(warped.canonical_points.clone()));
-        if rows.is_empty() {
-            rows.push(0);
-        }
-        let local =
-            Tensor::<1, Int>::from_data(TensorData::new(rows.clone(), [rows.len()]), &device);
-        let select = |t: Tensor<2>| t.select(0, local.clone());
-        let kept = Warped {
-            weights: select(warped.weights),
-            // The residual's penalty covers every sample that reached the blend-weight field.
-            residual: warped.residual,
-            canonical_points: select(warped.canonical_points),
+        let mut kept = Warped {
+            weights,
+            residual: None,
+            canonical_points,
         };
-        let dirs = self.colour_directions(select(points), select(dirs), &kept, frame);
-        (rows, self.radiance(kept, dirs, frame, canonical))
+        // Rows kept per frame: those in occupied canonical cells, or all without a grid.
+        let rows: Vec<Vec<i64>> = match &self.occupancy {
+            None => counts.iter().map(|&n| (0..n as i64).collect()).collect(),
+            Some(grid) => {
+                let occupied = grid.occupied_rows(&to_host(kept.canonical_points.clone()));
+                let rows = frame_rows(&occupied, &counts);
+                let all: Vec<i64> = rows
+                    .iter()
+                    .zip(offsets(&counts))
+                    .flat_map(|(r, start)| r.iter().map(move |&j| j + start as i64))
+                    .collect();
+                let n = all.len();
+                let index =
+                    Tensor::<1, Int>::from_data(TensorData::new(all, [n]), &points.device());
+                let select = |t: Tensor<2>| t.select(0, index.clone());
+                kept = Warped {
+                    weights: select(kept.weights),
+                    residual: None,
+                    canonical_points: select(kept.canonical_points),
+                };
+                (points, dirs) = (select(points), select(dirs));
+                rows
+            }
+        };
+        let kept_counts: Vec<usize> = rows.iter().map(Vec::len).collect();
+        let dirs = match self.config.view_direction {
+            ViewDirection::Canonical => cat_rows(
+                frames
+                    .iter()
+                    .zip(split_rows(points, &kept_counts))
+                    .zip(split_rows(dirs, &kept_counts))
+                    .zip(split_rows(kept.weights.clone(), &kept_counts))
+                    .zip(split_rows(kept.canonical_points.clone(), &kept_counts))
+                    .map(|((((frame, p), d), weights), canonical_points)| {
+                        let warped = Warped {
+                            weights,
+                            residual: None,
+                            canonical_points,
+                        };
+                        self.colour_directions(p, d, &warped, frame)
+                    })
+                    .collect(),
+            ),
+            _ => self.colour_directions(points, dirs, &kept, frames[0]),
+        };
+        let appearance = CodeRows::Groups(
+            frames
+                .iter()
+                .map(|f| f.appearance)
+                .zip(kept_counts.iter().copied())
+                .collect(),
+        );
+        let shaded = self.radiance(kept, dirs, &appearance, canonical);
+        let part = |t: &Tensor<2>| split_rows(t.clone(), &kept_counts);
+        let (density, rgb) = (part(&shaded.density), part(&shaded.rgb));
+        let (canonical_points, weights) = (part(&shaded.canonical_points), part(&shaded.weights));
+        let inside = split_rows(shaded.inside, &kept_counts);
+        rows.into_iter()
+            .zip(density)
+            .zip(rgb)
+            .zip(canonical_points)
+            .zip(weights)
+            .zip(residuals)
+            .zip(inside)
+            .map(
+                |((((((rows, density), rgb), canonical_points), weights), residual), inside)| {
+                    let shaded = ShadedSamples {
+                        density,
+                        rgb,
+                        canonical_points,
+                        weights,
+                        residual,
+                        inside,
+                    };
+                    (rows, shaded)
+                },
+            )
+            .collect()
     }
 
-    /// Culls the samples of `rays` at `depths` (`[R, S]`) where `culling` says and shades the survivors.
-    fn shade_culled(
+    /// The samples of `rays` at `depths` (`[R, S]`) that survive culling where `culling` says, on the device.
+    fn survivors(
         &self,
         culling: Culling,
         rays: &RayBatch,
         depths: Tensor<2>,
         frame: &FrameInputs,
-        canonical: &CanonicalInputs,
-    ) -> Culled {
-        let device = rays.origins.device();
+    ) -> DeviceSurvivors {
         match culling {
-            Culling::Device => {
-                let survivors = cull_on_device(
-                    rays,
-                    depths,
-                    &frame.global,
-                    &frame.volume,
-                    self.config.cull_distance,
-                    frame.warp.as_ref(),
-                );
-                let (rows, shaded) = self.shade_points(
-                    survivors.points,
-                    survivors.prior,
-                    survivors.directions,
-                    frame,
-                    canonical,
-                );
-                let (surviving, occupied) = (survivors.index.dims()[0], rows.len());
-                let index = if occupied == surviving {
-                    survivors.index
-                } else {
-                    let rows =
-                        Tensor::<1, Int>::from_data(TensorData::new(rows, [occupied]), &device);
-                    survivors.index.select(0, rows)
-                };
-                Culled {
-                    index,
-                    surviving,
-                    occupied,
-                    shaded,
-                }
-            }
+            Culling::Device => cull_on_device(
+                rays,
+                depths,
+                &frame.global,
+                &frame.volume,
+                self.config.cull_distance,
+                frame.warp.as_ref(),
+            ),
             Culling::Host => {
+                let device = rays.origins.device();
                 let survivors = cull_samples(
                     &SampleRays {
                         origins: &to_host(rays.origins.clone()),
@@ -573,34 +656,21 @@ impl AnimatableNerf {
                     self.config.cull_distance,
                     frame.warp.as_ref().map(CorrectionWarp::host),
                 );
-                let (rows, shaded) =
-                    self.shade_survivors(&survivors.points, survivors.directions, frame, canonical);
-                let occupied = rows.len();
-                let global: Vec<i64> = rows.iter().map(|&j| survivors.index[j as usize]).collect();
-                Culled {
-                    index: Tensor::<1, Int>::from_data(
-                        TensorData::new(global, [occupied]),
+                let m = survivors.index.len();
+                DeviceSurvivors {
+                    index: Tensor::from_data(TensorData::new(survivors.index, [m]), &device),
+                    prior: frame.volume.weights_at(&survivors.points),
+                    points: points_tensor(&survivors.points, &device),
+                    directions: Tensor::from_data(
+                        TensorData::new(survivors.directions, [m, 3]),
                         &device,
                     ),
-                    surviving: survivors.index.len(),
-                    occupied,
-                    shaded,
                 }
             }
         }
     }
 
-    /// Renders `rays` of one frame. `jitter` (`[R, S]` uniform in `[0, 1)`) perturbs the depths when training;
-    /// `with_consistency` also returns the inputs of the blend-weight consistency loss.
-    ///
-    /// Samples whose distance to the body (the frame volume's last channel) is at least `cull_distance` never
-    /// reach an MLP: on CPU backends culling and the survivors' prior weights are computed on the host
-    /// ([`cull_samples`], [`VolumeTensor::weights_at`]) and the survivors uploaded; on GPU backends both run
-    /// on the device ([`cull_on_device`]). The survivors are shaded and scattered back; culled samples
-    /// have zero density.
-    /// The sample closest to the body is always kept, so the MLP batch is never empty. With an occupancy grid
-    /// ([`Self::rebuild_occupancy`]), survivors whose warped position falls in an empty canonical cell skip the
-    /// canonical NeRF (and the canonical blend weights) too: one more read-back of their canonical positions.
+    /// Renders `rays` of one frame ([`Self::render_frames`] of one).
     pub fn render(
         &self,
         rays: &RayBatch,
@@ -609,60 +679,191 @@ impl AnimatableNerf {
         jitter: Option<Tensor<2>>,
         with_consistency: bool,
     ) -> RenderOutput {
-        let frame = &self.posed_frame(frame);
-        let device = rays.origins.device();
-        let s = self.config.samples_per_ray;
-        let r = rays.len();
-        let n = r * s;
-        let depths = stratified_depths(rays.near.clone(), rays.far.clone(), s, jitter);
-        let Culled {
-            index,
-            surviving,
-            occupied,
-            shaded,
-        } = self.shade_culled(
-            Culling::for_device(&device),
+        let part = FrameRays {
             rays,
-            depths.clone(),
             frame,
-            canonical,
-        );
+            jitter,
+        };
+        let mut out = self.render_frames(vec![part], canonical, with_consistency);
+        out.pop().expect("one frame")
+    }
 
-        let consistency = with_consistency.then(|| self.consistency_terms(&shaded, canonical));
-        let density = Tensor::<2>::zeros([n, 1], &device).select_assign(
-            0,
-            index.clone(),
-            shaded.density,
-            IndexingUpdateOp::Add,
-        );
-        let rgb = Tensor::<2>::zeros([n, 3], &device).select_assign(
-            0,
-            index,
-            shaded.rgb,
-            IndexingUpdateOp::Add,
-        );
-        let out = composite(density.reshape([r, s]), rgb.reshape([r, s, 3]), depths);
-        RenderOutput {
-            rgb: out.rgb,
-            acc: out.acc,
-            depth: out.depth,
-            alpha: out.alpha,
-            consistency,
-            surviving_samples: surviving,
-            occupied_samples: occupied,
-            total_samples: n,
-        }
+    /// Renders the rays of several frames, one output per frame, as [`Self::render`] renders each alone, but
+    /// with one call of each field for all of them: a training step of several frames then pays the fields'
+    /// fixed costs (a hash table's dense gradient, every layer's operations) once, not once per frame. The
+    /// frames must all be training frames or all novel-pose frames (one blend-weight field). Each part's
+    /// `jitter` (`[R, S]` uniform in `[0, 1)`) perturbs its depths when training; `with_consistency` also
+    /// returns the inputs of the blend-weight consistency loss.
+    ///
+    /// Samples whose distance to the body (the frame volume's last channel) is at least `cull_distance` never
+    /// reach an MLP: on CPU backends culling and the survivors' prior weights are computed on the host
+    /// ([`cull_samples`], [`VolumeTensor::weights_at`]) and the survivors uploaded; on GPU backends both run
+    /// on the device ([`cull_on_device`]). The survivors are shaded and scattered back; culled samples
+    /// have zero density.
+    /// The sample closest to the body is always kept, so no frame's MLP batch is empty. With an occupancy grid
+    /// ([`Self::rebuild_occupancy`]), survivors whose warped position falls in an empty canonical cell skip the
+    /// canonical NeRF (and the canonical blend weights) too: one more read-back of their canonical positions.
+    pub fn render_frames(
+        &self,
+        parts: Vec<FrameRays<'_>>,
+        canonical: &CanonicalInputs,
+        with_consistency: bool,
+    ) -> Vec<RenderOutput> {
+        let s = self.config.samples_per_ray;
+        let frames: Vec<FrameInputs> = parts.iter().map(|p| self.posed_frame(p.frame)).collect();
+        let (rays, depths): (Vec<&RayBatch>, Vec<Tensor<2>>) = parts
+            .into_iter()
+            .map(|p| {
+                let depths =
+                    stratified_depths(p.rays.near.clone(), p.rays.far.clone(), s, p.jitter);
+                (p.rays, depths)
+            })
+            .unzip();
+        let culling = Culling::for_device(&rays[0].origins.device());
+        let survivors: Vec<DeviceSurvivors> = rays
+            .iter()
+            .zip(&depths)
+            .zip(&frames)
+            .map(|((rays, depths), frame)| self.survivors(culling, rays, depths.clone(), frame))
+            .collect();
+        let samples = survivors
+            .iter()
+            .map(|s| FrameSamples {
+                points: s.points.clone(),
+                prior: s.prior.clone(),
+                dirs: s.directions.clone(),
+            })
+            .collect();
+        let frame_refs: Vec<&FrameInputs> = frames.iter().collect();
+        let shaded = self.shade_frames(samples, &frame_refs, canonical);
+        let canonical_weights = with_consistency.then(|| {
+            let points = shaded
+                .iter()
+                .map(|(_, s)| s.canonical_points.clone())
+                .collect();
+            let counts: Vec<usize> = shaded.iter().map(|(rows, _)| rows.len()).collect();
+            split_rows(self.canonical_weights(cat_rows(points), canonical), &counts)
+        });
+        let mut canonical_weights = canonical_weights.map(Vec::into_iter);
+        shaded
+            .into_iter()
+            .zip(survivors)
+            .zip(rays)
+            .zip(depths)
+            .map(|((((rows, shaded), survivors), rays), depths)| {
+                let device = rays.origins.device();
+                let (r, surviving, occupied) = (rays.len(), survivors.index.dims()[0], rows.len());
+                let n = r * s;
+                let index = if occupied == surviving {
+                    survivors.index
+                } else {
+                    let rows =
+                        Tensor::<1, Int>::from_data(TensorData::new(rows, [occupied]), &device);
+                    survivors.index.select(0, rows)
+                };
+                let consistency = canonical_weights.as_mut().map(|c| {
+                    ConsistencyTerms::new(
+                        shaded.weights.clone(),
+                        c.next().expect("canonical weights of every frame"),
+                        shaded.density.clone(),
+                        shaded.residual.clone(),
+                    )
+                });
+                let density = Tensor::<2>::zeros([n, 1], &device).select_assign(
+                    0,
+                    index.clone(),
+                    shaded.density,
+                    IndexingUpdateOp::Add,
+                );
+                let rgb = Tensor::<2>::zeros([n, 3], &device).select_assign(
+                    0,
+                    index,
+                    shaded.rgb,
+                    IndexingUpdateOp::Add,
+                );
+                let out = composite(density.reshape([r, s]), rgb.reshape([r, s, 3]), depths);
+                RenderOutput {
+                    rgb: out.rgb,
+                    acc: out.acc,
+                    depth: out.depth,
+                    alpha: out.alpha,
+                    consistency,
+                    surviving_samples: surviving,
+                    occupied_samples: occupied,
+                    total_samples: n,
+                }
+            })
+            .collect()
     }
 }
 
-/// The shaded survivors of a render's samples.
-struct Culled {
-    /// `[occupied]` flat indices `ray · S + sample` of the shaded samples.
-    index: Tensor<1, Int>,
-    /// Samples that survived culling, and those of them that were shaded (in occupied canonical cells).
-    surviving: usize,
-    occupied: usize,
-    shaded: ShadedSamples,
+/// One frame's rays in a render of several frames ([`AnimatableNerf::render_frames`]).
+pub struct FrameRays<'a> {
+    pub rays: &'a RayBatch,
+    pub frame: &'a FrameInputs,
+    /// `[R, S]` uniform in `[0, 1)`: the depths' jitter when training.
+    pub jitter: Option<Tensor<2>>,
+}
+
+/// One frame's samples to shade: pose-space points `[M, 3]` (metres), their prior weights `[M, K]` and
+/// world-space unit view directions `[M, 3]`.
+struct FrameSamples {
+    points: Tensor<2>,
+    prior: Tensor<2>,
+    dirs: Tensor<2>,
+}
+
+/// The parts' rows one after the other (the part itself when there is one).
+fn cat_rows<const D: usize, K: burn::tensor::kind::Basic>(
+    mut parts: Vec<Tensor<D, K>>,
+) -> Tensor<D, K> {
+    if parts.len() == 1 {
+        return parts.pop().expect("one part");
+    }
+    Tensor::cat(parts, 0)
+}
+
+/// `t` cut into consecutive parts of `counts` rows (`t` itself when there is one part).
+fn split_rows<const D: usize, K: burn::tensor::kind::Basic>(
+    t: Tensor<D, K>,
+    counts: &[usize],
+) -> Vec<Tensor<D, K>> {
+    if counts.len() == 1 {
+        return vec![t];
+    }
+    offsets(counts)
+        .zip(counts)
+        .map(|(start, &n)| t.clone().narrow(0, start, n))
+        .collect()
+}
+
+/// The first row of each part of `counts` rows.
+fn offsets(counts: &[usize]) -> impl Iterator<Item = usize> + '_ {
+    counts.iter().scan(0, |start, &n| {
+        let first = *start;
+        *start += n;
+        Some(first)
+    })
+}
+
+/// `occupied` (ascending rows of the concatenated parts of `counts` rows) as each part's own rows; a part
+/// with none keeps its first row, so that no frame's batch is empty.
+fn frame_rows(occupied: &[i64], counts: &[usize]) -> Vec<Vec<i64>> {
+    let mut rows = vec![Vec::new(); counts.len()];
+    let ends: Vec<usize> = offsets(counts).zip(counts).map(|(s, n)| s + n).collect();
+    let mut part = 0;
+    for &j in occupied {
+        while j as usize >= ends[part] {
+            part += 1;
+        }
+        rows[part].push(j - (ends[part] - counts[part]) as i64);
+    }
+    for r in &mut rows {
+        if r.is_empty() {
+            r.push(0);
+        }
+    }
+    rows
 }
 
 /// `mean(F²)` of a residual `[M, K]`; zero for none.

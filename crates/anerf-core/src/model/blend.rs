@@ -5,6 +5,7 @@ use burn::module::Param;
 use burn::nn::{Embedding, EmbeddingConfig, Linear};
 use burn::prelude::*;
 
+use super::codes::CodeRows;
 use super::encoding::{encode_points, point_input, PositionalEncoding};
 use super::hash_grid::HashGrid;
 use super::mlp::{linear_rows, torch_linear, SkipMlp, SkipMlpConfig};
@@ -66,9 +67,14 @@ impl BlendWeightField {
 
     /// The MLP output `F` (`[N, K]`) at points `[N, 3]` (metres, pose or canonical space) for code row `code`.
     pub fn residual(&self, points: Tensor<2>, code: usize) -> Tensor<2> {
-        let psi = self.codes.weight.val().narrow(0, code, 1);
+        self.residual_of(points, &CodeRows::One(code))
+    }
+
+    /// [`Self::residual`] with each point's code row from `codes` (several frames' points at once).
+    pub fn residual_of(&self, points: Tensor<2>, codes: &CodeRows) -> Tensor<2> {
+        let psi = codes.codes(self.codes.weight.val());
         let encoded = encode_points(self.grid.as_ref(), self.xyz, points);
-        linear_rows(&self.head, self.trunk.forward(encoded, Some(psi)))
+        linear_rows(&self.head, self.trunk.forward(encoded, Some(&psi)))
     }
 
     /// Blend weights `[N, K]` (rows sum to 1) at points `[N, 3]`, for code row `code` and prior weights `[N, K]`.

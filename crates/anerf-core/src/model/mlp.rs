@@ -5,13 +5,15 @@ use burn::nn::{Initializer, Linear, LinearConfig};
 use burn::prelude::*;
 use burn::tensor::activation::relu;
 
+use super::codes::Codes;
+
 /// A `depth`-layer ReLU MLP of `width` units. Its input is `[point features ⊕ conditioning]`; after layer
 /// `skip` (0-based) the input is concatenated to the activations again (the reference's `skips = [4]`).
 ///
-/// The conditioning (a per-frame latent code, the same for every point of a batch) enters the first and the
-/// skip layer through its own bias-free projection computed once per batch instead of being tiled over the
-/// points: mathematically the same layer as a `Linear` over the concatenation, but `[1, C] · [C, W]` instead
-/// of `[N, C] · [C, W]`. Weights are initialised as PyTorch initialises the concatenated layer,
+/// The conditioning (a per-frame latent code, the same for every point of a frame) enters the first and the
+/// skip layer through its own bias-free projection computed once per code instead of being tiled over the
+/// points ([`Codes::project`]): mathematically the same layer as a `Linear` over the concatenation, but
+/// `[G, C] · [C, W]` for `G` codes instead of `[N, C] · [C, W]`. Weights are initialised as PyTorch initialises the concatenated layer,
 /// `U(±1/√fan_in)` with `fan_in` counting both parts.
 #[derive(Module, Debug)]
 pub struct SkipMlp {
@@ -125,6 +127,20 @@ pub fn linear_over_parts(layer: &Linear, parts: &[Tensor<2>]) -> Tensor<2> {
     }
 }
 
+/// `layer` applied to `[x ⊕ code]` for each point's code (the codes' part of the weight is the last rows):
+/// [`linear_over_parts`] with the codes' part mapped once per code ([`Codes::project`]).
+pub fn linear_with_codes(layer: &Linear, x: Tensor<2>, codes: &Codes) -> Tensor<2> {
+    let weight = layer.weight.val();
+    let [_, d] = x.dims();
+    let [width, _] = weight.dims();
+    let out = rows_matmul(x, weight.clone().narrow(0, 0, d))
+        + codes.project(|c| rows_matmul(c, weight.narrow(0, d, width - d)));
+    match &layer.bias {
+        Some(b) => out + b.val().unsqueeze(),
+        None => out,
+    }
+}
+
 /// A `Linear` initialised as PyTorch's `nn.Linear`/`Conv1d(k=1)`: weights and bias `U(±1/√d_in)`.
 pub fn torch_linear(d_in: usize, d_out: usize, device: &Device) -> Linear {
     uniform_linear(d_in, d_out, d_in, true, device)
@@ -174,13 +190,13 @@ impl SkipMlp {
         self.layers[0].weight.dims()[1]
     }
 
-    /// `[N, input]` point features and an optional `[1, conditioning]` code → `[N, width]` activations.
-    pub fn forward(&self, input: Tensor<2>, conditioning: Option<Tensor<2>>) -> Tensor<2> {
-        let projected: Vec<Tensor<2>> = match &conditioning {
+    /// `[N, input]` point features and optional codes of the points → `[N, width]` activations.
+    pub fn forward(&self, input: Tensor<2>, conditioning: Option<&Codes>) -> Tensor<2> {
+        let projected: Vec<Tensor<2>> = match conditioning {
             Some(c) => self
                 .conditioning
                 .iter()
-                .map(|l| l.forward(c.clone()))
+                .map(|l| c.project(|rows| l.forward(rows)))
                 .collect(),
             None => Vec::new(),
         };
@@ -226,7 +242,8 @@ mod tests {
         let mlp = cfg.init(&device);
         let x = Tensor::<2>::random([6, 5], Distribution::Normal(0.0, 1.0), &device);
         let c = Tensor::<2>::random([1, 3], Distribution::Normal(0.0, 1.0), &device);
-        let got = to_host(mlp.forward(x.clone(), Some(c.clone())));
+        let codes = crate::model::codes::CodeRows::One(0).codes(c.clone());
+        let got = to_host(mlp.forward(x.clone(), Some(&codes)));
 
         // Plain re-statement: every joining layer sees [h, x, c] with weights [W_h; W_c] stacked.
         let full = Tensor::cat(vec![x.clone(), c.repeat_dim(0, 6)], 1);

@@ -2,6 +2,7 @@
 
 pub mod animatable;
 pub mod blend;
+pub mod codes;
 pub mod config;
 pub mod culling;
 pub mod encoding;
@@ -14,8 +15,8 @@ pub mod pose_refinement;
 pub mod stage2;
 
 pub use animatable::{
-    AnimatableNerf, CanonicalInputs, ConsistencyTerms, FrameCode, FrameInputs, ModelSizes,
-    RenderOutput, ShadedSamples,
+    AnimatableNerf, CanonicalInputs, ConsistencyTerms, FrameCode, FrameInputs, FrameRays,
+    ModelSizes, RenderOutput, ShadedSamples,
 };
 pub use blend::BlendWeightField;
 pub use config::{

@@ -4,9 +4,12 @@ use burn::nn::{Embedding, EmbeddingConfig, Linear};
 use burn::prelude::*;
 use burn::tensor::activation::{relu, sigmoid};
 
+use super::codes::CodeRows;
 use super::encoding::{encode_points, point_input, PositionalEncoding};
 use super::hash_grid::HashGrid;
-use super::mlp::{linear_over_parts, linear_rows, torch_linear, SkipMlp, SkipMlpConfig};
+use super::mlp::{
+    linear_over_parts, linear_rows, linear_with_codes, torch_linear, SkipMlp, SkipMlpConfig,
+};
 use super::{ModelConfig, PointEncoding};
 
 /// Density and colour in canonical space: trunk on `γ(x_can)` (or the field's hash grid) → raw density (no
@@ -106,19 +109,19 @@ impl CanonicalNerf {
     }
 
     /// Density and colour at canonical points `[N, 3]` (metres) seen along unit view directions `[N, 3]`
-    /// (world space), with the appearance code of row `appearance_index`.
+    /// (world space), with the appearance codes of rows `appearance` (one frame's, or each group's).
     pub fn forward(
         &self,
         points: Tensor<2>,
         dirs: Tensor<2>,
-        appearance_index: usize,
+        appearance: &CodeRows,
     ) -> RadianceSample {
         let encoded_dirs = self.dir.encode(dirs);
         let h = self.trunk.forward(self.encode(points), None);
         let density = linear_rows(&self.density, h.clone());
-        // The code is one row for all points: its part of `appearance_fc` is computed once and broadcast.
-        let code = self.appearance.weight.val().narrow(0, appearance_index, 1);
-        let f = linear_over_parts(&self.appearance_fc, &[linear_rows(&self.feature, h), code]);
+        // The codes' part of `appearance_fc` is computed once per code and spread over its points.
+        let codes = appearance.codes(self.appearance.weight.val());
+        let f = linear_with_codes(&self.appearance_fc, linear_rows(&self.feature, h), &codes);
         let v = relu(linear_over_parts(&self.view_fc, &[f, encoded_dirs]));
         RadianceSample {
             density,

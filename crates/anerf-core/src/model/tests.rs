@@ -13,6 +13,7 @@ use crate::geometry::BlendWeightVolume;
 use crate::geometry::{
     inverse_lbs_point, Aabb, Camera, CanonicalPose, GlobalTransform, Pose, PoseBasis, Skeleton,
 };
+use crate::model::{OccupancyConfig, OccupancyGrid};
 use crate::render::{color_mse, composite, stratified_depths, HostRays, RayBatch};
 use crate::tensor::{from_rows, parameter_gradients, to_host};
 use crate::FrameId;
@@ -723,32 +724,35 @@ fn flex_and_ndarray_render_the_same_image() {
     );
 }
 
-/// With an occupancy grid, samples whose canonical position falls in an empty cell skip the canonical NeRF:
-/// the image equals shading every surviving sample and zeroing the density of those in empty cells.
-#[test]
-fn occupancy_grid_matches_zeroing_samples_in_empty_cells() {
-    use crate::model::{OccupancyConfig, OccupancyGrid};
-    let device = cpu_device();
-    device.seed(4);
-    let s = scene(&device, FrameCode::Training(1));
-    let mut model = tiny_model(&device);
-    // An analytic grid: occupied within 0.35 m of a point of the canonical body (about half its box).
-    let centre = Vec3::new(0.0, 0.3, 0.0);
+/// An analytic occupancy grid over `bounds`: occupied within 0.35 m of a point of the canonical body
+/// (about half its box).
+fn ball_grid(bounds: Aabb, device: &Device) -> OccupancyGrid {
     let config = OccupancyConfig {
         resolution: 16,
         density_threshold: 0.5,
         update_every: 1,
         warmup_steps: 0,
     };
-    let grid = OccupancyGrid::build(&config, s.canonical.bounds, &device, |p: Tensor<2>| {
-        let c = Tensor::<2>::from_floats([centre.to_array()], &p.device());
+    OccupancyGrid::build(&config, bounds, device, |p: Tensor<2>| {
+        let c = Tensor::<2>::from_floats([[0.0, 0.3, 0.0]], &p.device());
         (p - c)
             .powi_scalar(2)
             .sum_dim(1)
             .sqrt()
             .lower_elem(0.35)
             .float()
-    });
+    })
+}
+
+/// With an occupancy grid, samples whose canonical position falls in an empty cell skip the canonical NeRF:
+/// the image equals shading every surviving sample and zeroing the density of those in empty cells.
+#[test]
+fn occupancy_grid_matches_zeroing_samples_in_empty_cells() {
+    let device = cpu_device();
+    device.seed(4);
+    let s = scene(&device, FrameCode::Training(1));
+    let mut model = tiny_model(&device);
+    let grid = ball_grid(s.canonical.bounds, &device);
     let fraction = grid.occupied_fraction();
     assert!(fraction > 0.1 && fraction < 0.9, "{fraction}");
     model.set_occupancy(Some(grid.clone()));
@@ -1274,5 +1278,179 @@ fn fitting_the_corrections_to_images_of_a_known_correction_recovers_it() {
         "left {r:.4} of {:.4} rad and {t:.4} of {:.4} m",
         rotation.length(),
         translation.length()
+    );
+}
+
+/// A render of several frames at once gives each frame what its own render gives: the same colours,
+/// opacities, depths, sample counts and consistency terms, and the same parameter gradients for a loss
+/// over all of them, with refined fits (each frame's corrections and codes its own), canonical view
+/// directions and an occupancy grid that leaves one frame a single sample.
+#[test]
+fn rendering_frames_together_gives_each_frames_own_render() {
+    let device = cpu_device().autodiff();
+    device.seed(9);
+    let config = ModelConfig {
+        view_direction: ViewDirection::Canonical,
+        pose_refinement: PoseRefinementConfig {
+            enabled: true,
+            ..Default::default()
+        },
+        ..ModelPreset::Tiny.config()
+    };
+    let mut model = seeded_model(config, &device, 9);
+    // Every frame's corrections non-zero and different, so that each frame's bones are its own.
+    let mut list = ParamList(Vec::new());
+    model.pose.as_ref().unwrap().visit(&mut list);
+    for &(id, len, _) in &list.0 {
+        for index in 0..len {
+            model = model.map(&mut Nudge {
+                target: id,
+                index,
+                delta: 0.02 * ((index * 7 + len) % 11) as f32 - 0.1,
+            });
+        }
+    }
+    let scenes: Vec<Scene> = (0..3)
+        .map(|f| {
+            let mut s = scene(&device, FrameCode::Training(f));
+            s.frame.appearance = 2 - f;
+            s.frame.basis = Some(s.basis.clone());
+            s.frame.bones = BoneMatrices::new(
+                &shifted_bones(&s.bones, Vec3::new(0.03 * f as f32, 0.0, -0.02)),
+                &device,
+            );
+            s
+        })
+        .collect();
+    // Most samples of the frames lie in the grid's occupied ball; the third frame's rays are moved far
+    // off the body, where culling keeps one sample that the grid drops.
+    let grid = ball_grid(scenes[0].canonical.bounds, &device);
+    model.set_occupancy(Some(grid));
+    let mut far = scenes[2].host_rays.clone();
+    for o in &mut far.origins {
+        o[0] += 3.0;
+    }
+    let far = RayBatch::new(&far, FrameId(2), &device);
+    let rays = [&scenes[0].rays, &scenes[1].rays, &far];
+    let jitter = |f: usize| {
+        let (r, s) = (rays[f].len(), model.config().samples_per_ray);
+        let values: Vec<f32> = (0..r * s)
+            .map(|i| ((i * 37 + f * 11) % 97) as f32 / 97.0)
+            .collect();
+        from_rows(&values, r, s, &device)
+    };
+    let canonical = &scenes[0].canonical;
+    let together = model.render_frames(
+        (0..3)
+            .map(|f| FrameRays {
+                rays: rays[f],
+                frame: &scenes[f].frame,
+                jitter: Some(jitter(f)),
+            })
+            .collect(),
+        canonical,
+        true,
+    );
+    let alone: Vec<RenderOutput> = (0..3)
+        .map(|f| model.render(rays[f], &scenes[f].frame, canonical, Some(jitter(f)), true))
+        .collect();
+    assert_eq!(
+        alone[2].occupied_samples, 1,
+        "the far frame keeps one sample"
+    );
+    let close = |what: &str, a: Tensor<2>, b: Tensor<2>| {
+        let (a, b) = (to_host(a), to_host(b));
+        assert_eq!(a.len(), b.len(), "{what}");
+        for (x, y) in a.iter().zip(&b) {
+            assert!(
+                (x - y).abs() <= 1e-5 * (1.0 + y.abs()),
+                "{what}: {x} vs {y}"
+            );
+        }
+    };
+    for (f, (t, a)) in together.iter().zip(&alone).enumerate() {
+        assert_eq!(
+            (t.surviving_samples, t.occupied_samples, t.total_samples),
+            (a.surviving_samples, a.occupied_samples, a.total_samples),
+            "frame {f}"
+        );
+        close(&format!("frame {f} rgb"), t.rgb.clone(), a.rgb.clone());
+        close(
+            &format!("frame {f} acc"),
+            t.acc.clone().unsqueeze_dim(1),
+            a.acc.clone().unsqueeze_dim(1),
+        );
+        close(
+            &format!("frame {f} depth"),
+            t.depth.clone().unsqueeze_dim(1),
+            a.depth.clone().unsqueeze_dim(1),
+        );
+        close(
+            &format!("frame {f} alpha"),
+            t.alpha.clone(),
+            a.alpha.clone(),
+        );
+        let (tc, ac) = (
+            t.consistency.as_ref().unwrap(),
+            a.consistency.as_ref().unwrap(),
+        );
+        close(
+            &format!("frame {f} observed"),
+            tc.observed.clone(),
+            ac.observed.clone(),
+        );
+        close(
+            &format!("frame {f} canonical"),
+            tc.canonical.clone(),
+            ac.canonical.clone(),
+        );
+        close(&format!("frame {f} mask"), tc.mask.clone(), ac.mask.clone());
+        close(
+            &format!("frame {f} residual"),
+            tc.residual.clone().unwrap(),
+            ac.residual.clone().unwrap(),
+        );
+    }
+    // Each frame's colours weighed by its own weights, plus its consistency loss.
+    let loss = |outs: &[RenderOutput]| {
+        outs.iter()
+            .enumerate()
+            .map(|(f, out)| {
+                let w = Tensor::<2>::from_floats([[0.7 - 0.2 * f as f32, -0.4, 1.1]], &device);
+                (out.rgb.clone() * w).sum()
+                    + out
+                        .consistency
+                        .as_ref()
+                        .unwrap()
+                        .loss(model.config().consistency)
+            })
+            .reduce(|a, b| a + b)
+            .unwrap()
+    };
+    let grads = |outs: &[RenderOutput]| {
+        parameter_gradients(
+            &model,
+            &GradientsParams::from_grads(loss(outs).backward(), &model),
+        )
+    };
+    let (gt, ga) = (grads(&together), grads(&alone));
+    let mut compared = 0;
+    for (t, a) in gt.iter().zip(&ga) {
+        match (t, a) {
+            (Some(t), Some(a)) => {
+                let scale = a.iter().fold(0.0f32, |m, v| m.max(v.abs()));
+                for (x, y) in t.iter().zip(a) {
+                    assert!((x - y).abs() <= 1e-4 * (1.0 + scale), "gradient {x} vs {y}");
+                }
+                compared += 1;
+            }
+            (None, None) => {}
+            _ => panic!("a parameter has a gradient one way only"),
+        }
+    }
+    assert!(
+        compared >= gt.len() - 1,
+        "{compared} of {} parameters compared",
+        gt.len()
     );
 }

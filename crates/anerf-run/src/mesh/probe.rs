@@ -5,6 +5,7 @@
 //! canonical mesh (`anerf mesh`, the glb of `anerf export`, `eval --mesh`) takes its colours from it.
 
 use anerf_core::geometry::skinning::points_tensor;
+use anerf_core::model::codes::CodeRows;
 use anerf_core::model::{AnimatableNerf, CanonicalInputs};
 use anerf_core::render::composite;
 use anerf_core::tensor::{from_rows, to_host};
@@ -66,7 +67,7 @@ pub fn probe_along_normals(
             .reshape([r, s]);
         let rgb = model
             .nerf
-            .forward(p, points_tensor(&dirs, &device), appearance)
+            .forward(p, points_tensor(&dirs, &device), &CodeRows::One(appearance))
             .rgb
             .reshape([r, s, 3]);
         let row: Vec<f32> = (0..r).flat_map(|_| depths.iter().copied()).collect();

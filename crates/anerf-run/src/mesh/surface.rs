@@ -6,6 +6,7 @@ use anerf_core::geometry::skinning::{points_tensor, world_to_pose};
 use anerf_core::geometry::BlendWeightVolume;
 use anerf_core::geometry::{forward_lbs_points, Aabb, BoneTransforms, GlobalTransform};
 use anerf_core::mesh::{marching_cubes, ScalarGrid, TriMesh};
+use anerf_core::model::codes::CodeRows;
 use anerf_core::model::{AnimatableNerf, CanonicalInputs, FrameInputs};
 use anerf_core::tensor::to_host;
 use anerf_data::visual_hull::VisualHull;
@@ -148,7 +149,7 @@ pub fn canonical_mesh(
         let rgb = model.nerf.forward(
             points_tensor(pts, device),
             points_tensor(&view, device),
-            appearance,
+            &CodeRows::One(appearance),
         );
         colors.extend(to_host(rgb.rgb).chunks(3).map(|c| [c[0], c[1], c[2]]));
     }

@@ -4,7 +4,7 @@
 use std::sync::atomic::AtomicBool;
 use std::sync::Arc;
 
-use anerf_core::model::{AnimatableNerf, FrameCode, FrameInputs};
+use anerf_core::model::{AnimatableNerf, FrameCode, FrameInputs, FrameRays};
 use anerf_core::render::{psnr_from_mse, HostRays, RayBatch};
 use anerf_core::tensor::{from_rows, to_host};
 use anerf_core::FrameId;
@@ -151,12 +151,12 @@ fn fresh_start(exp: &Experiment, cfg: &StageConfig) -> (AnimatableNerf, TrainerS
 /// One stage-1 step's rays on the host: `train.frames_per_step` random training frames, each with
 /// the rays sampled from `train.views_per_step` of its views.
 struct RayStep {
-    frames: Vec<FrameRays>,
+    frames: Vec<StepFrame>,
 }
 
 /// One frame's part of a step: its rays, their depth jitter, and the frame's inputs on each replica's
 /// device.
-struct FrameRays {
+struct StepFrame {
     frame: FrameId,
     rays: HostRays,
     /// `[R·S]` uniform numbers in `[0, 1)`, `S` per ray.
@@ -362,7 +362,7 @@ impl ShardedStep for Stage1<'_> {
                         })
                     })
                     .collect::<Result<_>>()?;
-                Ok(FrameRays {
+                Ok(StepFrame {
                     frame: image.frame,
                     rays,
                     jitter,
@@ -388,9 +388,12 @@ impl ShardedStep for Stage1<'_> {
         let total = batch.rays() as f32;
         let mut sum: Option<WeighedTerms> = None;
         let (mut surviving, mut occupied, mut samples, mut items) = (0, 0, 0, 0);
-        for frame in &batch.frames {
+        for (frame, (terms, out)) in batch
+            .frames
+            .iter()
+            .zip(self.frames_terms(batch, shard, model, device))
+        {
             let share = frame.rays.len() as f32 / total;
-            let (terms, out) = self.frame_terms(frame, shard, model, device);
             surviving += out.surviving_samples;
             occupied += out.occupied_samples;
             samples += out.total_samples;
@@ -431,47 +434,69 @@ struct RenderCounts {
 const POSE_CHECK_EVERY: usize = 100;
 
 impl Stage1<'_> {
-    /// One frame's rays of this shard rendered, and the [`Objective`]'s terms of them plus the frame's
-    /// pose regulariser, as a one-frame step weighs them.
-    fn frame_terms(
+    /// Each frame's rays of this shard rendered (one render of all the step's frames), and the
+    /// [`Objective`]'s terms of each frame's rays plus the frame's pose regulariser, as a one-frame step
+    /// weighs them.
+    fn frames_terms(
         &self,
-        frame: &FrameRays,
+        batch: &RayStep,
         shard: &Shard<'_>,
         model: &AnimatableNerf,
         device: &Device,
-    ) -> (WeighedTerms, RenderCounts) {
+    ) -> Vec<(WeighedTerms, RenderCounts)> {
         let cfg = self.cfg;
         let model_cfg = model.config();
-        let part = shard.part(frame.rays.len());
         let samples = model_cfg.samples_per_ray;
-        let rays = RayBatch::new(&frame.rays.slice(part.clone()), frame.frame, device);
-        let jitter = from_rows(
-            &frame.jitter[part.start * samples..part.end * samples],
-            part.len(),
-            samples,
-            device,
-        );
-        let inputs = &frame.inputs[shard.index];
-        let out = model.render(
-            &rays,
-            inputs,
+        let rays: Vec<RayBatch> = batch
+            .frames
+            .iter()
+            .map(|frame| {
+                let part = shard.part(frame.rays.len());
+                RayBatch::new(&frame.rays.slice(part), frame.frame, device)
+            })
+            .collect();
+        let parts = batch
+            .frames
+            .iter()
+            .zip(&rays)
+            .map(|(frame, rays)| {
+                let part = shard.part(frame.rays.len());
+                FrameRays {
+                    rays,
+                    frame: &frame.inputs[shard.index],
+                    jitter: Some(from_rows(
+                        &frame.jitter[part.start * samples..part.end * samples],
+                        part.len(),
+                        samples,
+                        device,
+                    )),
+                }
+            })
+            .collect();
+        let outs = model.render_frames(
+            parts,
             self.exp.canonical_on(shard.index),
-            Some(jitter),
             model_cfg.neural_blend_weights,
         );
-        let sums = TermSums::new(&out, &rays, cfg, model_cfg.consistency);
-        let totals = sums.totals(shard, device);
-        let mut terms = Objective { cfg }.weigh(sums, totals, shard.count);
-        if let Some(penalty) = self.pose_penalty(model, inputs) {
-            terms.loss = terms.loss + penalty;
-        }
-        let counts = RenderCounts {
-            rays: rays.len(),
-            surviving_samples: out.surviving_samples,
-            occupied_samples: out.occupied_samples,
-            total_samples: out.total_samples,
-        };
-        (terms, counts)
+        outs.into_iter()
+            .zip(&rays)
+            .zip(&batch.frames)
+            .map(|((out, rays), frame)| {
+                let sums = TermSums::new(&out, rays, cfg, model_cfg.consistency);
+                let totals = sums.totals(shard, device);
+                let mut terms = Objective { cfg }.weigh(sums, totals, shard.count);
+                if let Some(penalty) = self.pose_penalty(model, &frame.inputs[shard.index]) {
+                    terms.loss = terms.loss + penalty;
+                }
+                let counts = RenderCounts {
+                    rays: rays.len(),
+                    surviving_samples: out.surviving_samples,
+                    occupied_samples: out.occupied_samples,
+                    total_samples: out.total_samples,
+                };
+                (terms, counts)
+            })
+            .collect()
     }
 
     /// The pose refinement's regulariser for the batch's frame (the same on every shard, so that the
