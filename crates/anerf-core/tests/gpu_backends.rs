@@ -17,6 +17,7 @@ use anerf_core::geometry::BlendWeightVolume;
 use anerf_core::geometry::{
     Aabb, BoneMatrices, BoneTransforms, CanonicalPose, GlobalTransform, Pose, Skeleton,
 };
+use anerf_core::model::codes::CodeRows;
 use anerf_core::model::mlp::SkipMlpConfig;
 use anerf_core::tensor::{parameter_gradients, to_host};
 use anerf_device::cpu_device;
@@ -65,10 +66,8 @@ fn mlp_forward_and_backward_match_flex() {
 
         let run = |device: &Device| {
             let mlp = mlp.clone().fork(device);
-            let out = mlp.forward(
-                input.clone().to_device(device),
-                Some(code.clone().to_device(device)),
-            );
+            let codes = CodeRows::One(0).codes(code.clone().to_device(device));
+            let out = mlp.forward(input.clone().to_device(device), Some(&codes));
             let loss = (out.clone() * mix.clone().to_device(device)).sum();
             let grads = GradientsParams::from_grads(loss.backward(), &mlp);
             (to_host(out), parameter_gradients(&mlp, &grads))
