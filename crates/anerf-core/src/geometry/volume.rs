@@ -260,6 +260,44 @@ impl BlendWeightVolume {
     }
 
     /// The flat index of the cell at `base`.
+    /// The blocks of [`BoneBlocks`]: a block's nodes are those of its cells, so neighbouring blocks share
+    /// their boundary nodes.
+    fn bone_blocks(&self) -> BoneBlocks {
+        let dims = self.cell_dims().map(|c| c.div_ceil(BLOCK_CELLS));
+        let nodes = |b: usize, a: usize| {
+            let lo = (b * BLOCK_CELLS).min(self.dims[a] - 1);
+            lo..=(lo + BLOCK_CELLS).min(self.dims[a] - 1)
+        };
+        let mut blocks = Vec::with_capacity(dims.iter().product());
+        for bi in 0..dims[0] {
+            for bj in 0..dims[1] {
+                for bk in 0..dims[2] {
+                    let (ri, rj, rk) = (nodes(bi, 0), nodes(bj, 1), nodes(bk, 2));
+                    let mut weighted = vec![false; self.num_joints];
+                    for i in ri.clone() {
+                        for j in rj.clone() {
+                            for k in rk.clone() {
+                                let node = self.node(i, j, k);
+                                for (w, has) in node[..self.num_joints].iter().zip(&mut weighted) {
+                                    *has |= *w != 0.0;
+                                }
+                            }
+                        }
+                    }
+                    let bones = (0..self.num_joints as u16)
+                        .filter(|&k| weighted[k as usize])
+                        .collect();
+                    let corners = [
+                        self.node_position(*ri.start(), *rj.start(), *rk.start()),
+                        self.node_position(*ri.end(), *rj.end(), *rk.end()),
+                    ];
+                    blocks.push((bones, corners));
+                }
+            }
+        }
+        BoneBlocks { dims, blocks }
+    }
+
     fn cell_index(&self, base: [usize; 3]) -> usize {
         let c = self.cell_dims();
         (base[0] * c[1] + base[1]) * c[2] + base[2]
@@ -300,6 +338,12 @@ impl BlendWeightVolume {
             host: Arc::new(HostVolume {
                 cell_distances: self.cell_distance_ranges(),
                 lipschitz: self.distance_lipschitz(),
+                weight_sum: self
+                    .data
+                    .chunks_exact(self.channels())
+                    .map(|node| node[..self.num_joints].iter().sum::<f32>())
+                    .fold(0.0, f32::max),
+                blocks: self.bone_blocks(),
                 volume: self.clone(),
             }),
         }
@@ -336,6 +380,39 @@ struct HostVolume {
     cell_distances: Vec<[f32; 2]>,
     /// [`BlendWeightVolume::distance_lipschitz`]: how far a displacement can move the distance.
     lipschitz: f32,
+    /// The largest sum of a node's weights (1 up to rounding and the zeroed negligible weights).
+    weight_sum: f32,
+    blocks: BoneBlocks,
+}
+
+/// Cells per axis of a block of [`BoneBlocks`].
+const BLOCK_CELLS: usize = 4;
+
+/// The volume's cells in blocks of [`BLOCK_CELLS`]³, each with the bones that have weight at one of its
+/// nodes and its box: a field blended from per-bone maps has only those bones' maps in the block.
+#[derive(Debug)]
+struct BoneBlocks {
+    /// Blocks per axis.
+    dims: [usize; 3],
+    /// Per block (row-major), its bones and the least and greatest corner of its box (metres).
+    blocks: Vec<(Vec<u16>, [Vec3; 2])>,
+}
+
+impl BoneBlocks {
+    /// The block holding the cell at `base`.
+    fn of_cell(&self, base: [usize; 3]) -> usize {
+        let b = base.map(|c| c / BLOCK_CELLS);
+        (b[0] * self.dims[1] + b[1]) * self.dims[2] + b[2]
+    }
+}
+
+/// A bound on the field `δ(p) = Σ_k w_k(p) M_k p̃` of some per-bone maps, block by block of the volume
+/// ([`VolumeTensor::field_bound`]): `|δ(p)| ≤ a + s · e` for `p` whose cell lies in a block of bound
+/// `[a, s]`, with `e` the distance from `p` to the volume's box. It settles most samples far from the body
+/// before any node is blended.
+#[derive(Debug, Clone, PartialEq)]
+pub struct FieldBound {
+    blocks: Vec<[f32; 2]>,
 }
 
 /// Per-bone affine maps `M_k = [L_k | t_k]` (3×4, row-major, acting on points of the volume's frame, metres)
@@ -478,6 +555,62 @@ impl VolumeTensor {
             nodes,
             bounds,
         }
+    }
+
+    /// A bound on the field of `maps` (one `[L | t]` a bone, row-major) blended by this volume's weights,
+    /// block by block ([`BoneBlocks`]): for `p` in a block's box, `|δ(p)| ≤ Σ_c λ_c Σ_k w_k(c) |M_k p̃| ≤
+    /// S · max_k |M_k p̃|` over the block's bones (`S` the largest sum of a node's weights), and `|M_k p̃|` is
+    /// convex in `p`, so at most its largest value at the box's corners; outside the volume's box a point
+    /// reads its clamped point's cell, and `|M_k p̃|` grows by at most `‖L_k‖_F` a metre from there.
+    pub fn field_bound(&self, maps: &[[f32; 12]]) -> FieldBound {
+        let host = &*self.host;
+        assert_eq!(maps.len(), host.volume.num_joints, "one map a bone");
+        let slopes: Vec<f32> = maps
+            .iter()
+            .map(|m| {
+                [0, 1, 2, 4, 5, 6, 8, 9, 10]
+                    .iter()
+                    .map(|&i| m[i] * m[i])
+                    .sum::<f32>()
+                    .sqrt()
+            })
+            .collect();
+        let sum = host.weight_sum;
+        let blocks = host
+            .blocks
+            .blocks
+            .par_iter()
+            .map(|(bones, [lo, hi])| {
+                let (mut at, mut slope) = (0.0f32, 0.0f32);
+                for &k in bones {
+                    let m = &maps[k as usize];
+                    for c in 0..8 {
+                        let x = Vec3::new(
+                            if c & 1 == 0 { lo.x } else { hi.x },
+                            if c & 2 == 0 { lo.y } else { hi.y },
+                            if c & 4 == 0 { lo.z } else { hi.z },
+                        );
+                        at = at.max(transform_point(m, x).length());
+                    }
+                    slope = slope.max(slopes[k as usize]);
+                }
+                [sum * at, sum * slope]
+            })
+            .collect();
+        FieldBound { blocks }
+    }
+
+    /// `Some(self.is_near(p + δ(p), threshold))` for every field `δ` under `bound` where the distances at
+    /// the corners of `p`'s cell settle it, `None` where they do not ([`Self::is_near_displaced`] answers
+    /// those). The slack's margin covers rounding as there.
+    pub fn settled_under(&self, p: Vec3, threshold: f32, bound: &FieldBound) -> Option<bool> {
+        let host = &*self.host;
+        let v = &host.volume;
+        let base = v.cell(p).0;
+        let [at, slope] = bound.blocks[host.blocks.of_cell(base)];
+        let outside = (p - p.clamp(v.bounds.min, v.bounds.max)).length();
+        let slack = host.lipschitz * (at + slope * outside) * (1.0 + 1e-4) + 1e-5;
+        host.settled_by_cell(base, threshold, slack)
     }
 
     /// The blended field `δ(p)` at a point of the volume's frame (metres): the trilinear blend of the nodes'
@@ -761,6 +894,8 @@ pub(crate) mod tests {
     /// point's own weights: a capsule's distance field with three bones' weights (zero over parts of the box),
     /// per-bone affine maps moving points by up to about 10 cm, points inside and outside the box. The blended
     /// field is the per-point blend, and thousands of points lie close enough to the threshold to need it.
+    /// The field's bound block by block ([`VolumeTensor::field_bound`]) holds at every point, and the points
+    /// it settles (thousands, not all of the far ones) get the same answer.
     #[test]
     fn is_near_displaced_agrees_with_displacing_every_point() {
         use rand::{Rng, SeedableRng};
@@ -812,7 +947,8 @@ pub(crate) mod tests {
                 .map(|k| w[k] * transform_point(&maps[k], p))
                 .sum::<Vec3>()
         };
-        let (mut near, mut far, mut unsettled) = (0, 0, 0);
+        let bound = host.field_bound(&maps);
+        let (mut near, mut far, mut unsettled, mut settled_by_bound) = (0, 0, 0, 0);
         for (i, &p) in points.iter().enumerate() {
             let q = displaced(p);
             let delta = host.displacement(&affines, p);
@@ -820,6 +956,18 @@ pub(crate) mod tests {
             assert!((blended - q).length() < 1e-6, "{p}: {blended} against {q}");
             let expected = host.is_near(q, 0.05);
             assert_eq!(host.is_near_displaced(p, 0.05, &affines), expected, "{p}");
+            // The field's bound holds at every point, and where it settles a point it is right.
+            let outside = (p - p.clamp(bounds.min, bounds.max)).length();
+            let [at, slope] = bound.blocks[host.host.blocks.of_cell(v.cell(p).0)];
+            assert!(
+                (q - p).length() <= (at + slope * outside) * (1.0 + 1e-5),
+                "{p}: |δ| {} over the block's bound {at} + {slope} · {outside} m outside",
+                (q - p).length()
+            );
+            if let Some(settled) = host.settled_under(p, 0.05, &bound) {
+                assert_eq!(settled, expected, "{p}: settled by the bound");
+                settled_by_bound += 1;
+            }
             // The same bits from a table of a part of the volume, or of all of it.
             let tables: &[&BlendedAffines] = if i < 100 { &[&few, &whole] } else { &[&whole] };
             for t in tables {
@@ -836,6 +984,10 @@ pub(crate) mod tests {
             }
         }
         assert!(near > 1000 && far > 1000, "{near} near, {far} far");
+        assert!(
+            settled_by_bound > 1000 && settled_by_bound < far,
+            "the bound settled {settled_by_bound} of {far} far points"
+        );
         assert!(
             unsettled > 100,
             "{unsettled} points need their displacement"

@@ -10,7 +10,7 @@ use glam::Vec3;
 use rayon::prelude::*;
 
 use crate::geometry::skinning::world_to_pose;
-use crate::geometry::{BlendedAffines, BoneMatrices, GlobalTransform, VolumeTensor};
+use crate::geometry::{BlendedAffines, BoneMatrices, FieldBound, GlobalTransform, VolumeTensor};
 use crate::render::RayBatch;
 use crate::tensor::to_host;
 
@@ -80,6 +80,11 @@ impl HostWarp {
     /// ([`VolumeTensor::blend_affines`]).
     fn blend(&self, volume: &VolumeTensor, points: &[Vec3]) -> BlendedAffines {
         volume.blend_affines(&self.rows, points)
+    }
+
+    /// A bound on the warp's displacement field in each block of `volume` ([`VolumeTensor::field_bound`]).
+    fn bound(&self, volume: &VolumeTensor) -> FieldBound {
+        volume.field_bound(&self.rows)
     }
 }
 
@@ -169,24 +174,44 @@ pub fn cull_samples(
                     - global.th)
         })
         .collect();
-    // Where the sample's distance is measured: where the given body has its point.
-    let affines = warp.map(|w| w.blend(volume, &pose));
-    let measured = |p: Vec3| match &affines {
-        Some(a) => p + volume.displacement(a, p),
-        None => p,
-    };
+    // Where the sample's distance is measured: where the given body has its point. The warp's bound, block
+    // by block of the volume, settles most samples far from the body; the bones' maps are blended only at
+    // the nodes of the cells of the rest.
+    let settled: Option<Vec<Option<bool>>> = warp.map(|w| {
+        let bound = w.bound(volume);
+        pose.par_iter()
+            .map(|&p| volume.settled_under(p, threshold, &bound))
+            .collect()
+    });
+    let affines = warp.zip(settled.as_ref()).map(|(w, settled)| {
+        let open: Vec<Vec3> = pose
+            .iter()
+            .zip(settled)
+            .filter(|(_, s)| s.is_none())
+            .map(|(&p, _)| p)
+            .collect();
+        w.blend(volume, &open)
+    });
     let mut near: Vec<(i64, Vec3)> = pose
         .par_iter()
         .enumerate()
         .filter_map(|(i, &p)| {
-            let near = match &affines {
-                Some(a) => volume.is_near_displaced(p, threshold, a),
-                None => volume.is_near(p, threshold),
+            let near = match (&affines, &settled) {
+                (Some(a), Some(settled)) => {
+                    settled[i].unwrap_or_else(|| volume.is_near_displaced(p, threshold, a))
+                }
+                _ => volume.is_near(p, threshold),
             };
             near.then_some((i as i64, p))
         })
         .collect();
     if near.is_empty() && !pose.is_empty() {
+        // Every sample's measured distance: the maps blended at the nodes of all their cells.
+        let affines = warp.map(|w| w.blend(volume, &pose));
+        let measured = |p: Vec3| match &affines {
+            Some(a) => p + volume.displacement(a, p),
+            None => p,
+        };
         let distance: Vec<f32> = pose
             .par_iter()
             .map(|&p| volume.distance_at(measured(p)))
