@@ -287,11 +287,11 @@ impl BlendWeightVolume {
                     let bones = (0..self.num_joints as u16)
                         .filter(|&k| weighted[k as usize])
                         .collect();
-                    let corners = [
-                        self.node_position(*ri.start(), *rj.start(), *rk.start()),
-                        self.node_position(*ri.end(), *rj.end(), *rk.end()),
-                    ];
-                    blocks.push((bones, corners));
+                    let bounds = Aabb {
+                        min: self.node_position(*ri.start(), *rj.start(), *rk.start()),
+                        max: self.node_position(*ri.end(), *rj.end(), *rk.end()),
+                    };
+                    blocks.push((bones, bounds));
                 }
             }
         }
@@ -359,6 +359,15 @@ fn transform_point(m: &[f32; 12], p: Vec3) -> Vec3 {
     )
 }
 
+/// `‖L‖_F` of a `3×4` row-major map `[L | t]`: how far it moves two points apart per metre between them.
+fn linear_norm(m: &[f32; 12]) -> f32 {
+    [0, 1, 2, 4, 5, 6, 8, 9, 10]
+        .iter()
+        .map(|&i| m[i] * m[i])
+        .sum::<f32>()
+        .sqrt()
+}
+
 /// A [`BlendWeightVolume`] on a device: a `[nodes, K+1]` table read with one gather for all 8 corners, and
 /// its distance channel `[nodes, 1]` alone (a 25th of the gather); a host copy serves the renderer's culling and
 /// prior weights, which need no gradient (it doubles the volume's memory, 8 MiB per frame of the demo).
@@ -394,8 +403,8 @@ const BLOCK_CELLS: usize = 4;
 struct BoneBlocks {
     /// Blocks per axis.
     dims: [usize; 3],
-    /// Per block (row-major), its bones and the least and greatest corner of its box (metres).
-    blocks: Vec<(Vec<u16>, [Vec3; 2])>,
+    /// Per block (row-major), its bones and its box (metres).
+    blocks: Vec<(Vec<u16>, Aabb)>,
 }
 
 impl BoneBlocks {
@@ -538,11 +547,7 @@ impl VolumeTensor {
                     }
                 }
                 let x = v.node_position(n / plane, n / v.dims[2] % v.dims[1], n % v.dims[2]);
-                let slope = [0, 1, 2, 4, 5, 6, 8, 9, 10]
-                    .iter()
-                    .map(|&i| blended[i] * blended[i])
-                    .sum::<f32>()
-                    .sqrt();
+                let slope = linear_norm(&blended);
                 let bound = [
                     transform_point(&blended, x).length() + slope * diagonal,
                     slope,
@@ -565,31 +570,17 @@ impl VolumeTensor {
     pub fn field_bound(&self, maps: &[[f32; 12]]) -> FieldBound {
         let host = &*self.host;
         assert_eq!(maps.len(), host.volume.num_joints, "one map a bone");
-        let slopes: Vec<f32> = maps
-            .iter()
-            .map(|m| {
-                [0, 1, 2, 4, 5, 6, 8, 9, 10]
-                    .iter()
-                    .map(|&i| m[i] * m[i])
-                    .sum::<f32>()
-                    .sqrt()
-            })
-            .collect();
+        let slopes: Vec<f32> = maps.iter().map(linear_norm).collect();
         let sum = host.weight_sum;
         let blocks = host
             .blocks
             .blocks
             .par_iter()
-            .map(|(bones, [lo, hi])| {
+            .map(|(bones, bounds)| {
                 let (mut at, mut slope) = (0.0f32, 0.0f32);
                 for &k in bones {
                     let m = &maps[k as usize];
-                    for c in 0..8 {
-                        let x = Vec3::new(
-                            if c & 1 == 0 { lo.x } else { hi.x },
-                            if c & 2 == 0 { lo.y } else { hi.y },
-                            if c & 4 == 0 { lo.z } else { hi.z },
-                        );
+                    for x in bounds.corners() {
                         at = at.max(transform_point(m, x).length());
                     }
                     slope = slope.max(slopes[k as usize]);

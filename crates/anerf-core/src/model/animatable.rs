@@ -720,20 +720,21 @@ impl AnimatableNerf {
             })
             .unzip();
         let culling = Culling::for_device(&rays[0].origins.device());
-        let survivors: Vec<DeviceSurvivors> = rays
+        // Per frame, its survivors' flat indices `ray · S + sample`, and the survivors to shade.
+        let (indices, samples): (Vec<Tensor<1, Int>>, Vec<FrameSamples>) = rays
             .iter()
             .zip(&depths)
             .zip(&frames)
-            .map(|((rays, depths), frame)| self.survivors(culling, rays, depths.clone(), frame))
-            .collect();
-        let samples = survivors
-            .iter()
-            .map(|s| FrameSamples {
-                points: s.points.clone(),
-                prior: s.prior.clone(),
-                dirs: s.directions.clone(),
+            .map(|((rays, depths), frame)| {
+                let survivors = self.survivors(culling, rays, depths.clone(), frame);
+                let samples = FrameSamples {
+                    points: survivors.points,
+                    prior: survivors.prior,
+                    dirs: survivors.directions,
+                };
+                (survivors.index, samples)
             })
-            .collect();
+            .unzip();
         let frame_refs: Vec<&FrameInputs> = frames.iter().collect();
         let shaded = self.shade_frames(samples, &frame_refs, canonical);
         let canonical_weights = with_consistency.then(|| {
@@ -747,19 +748,19 @@ impl AnimatableNerf {
         let mut canonical_weights = canonical_weights.map(Vec::into_iter);
         shaded
             .into_iter()
-            .zip(survivors)
+            .zip(indices)
             .zip(rays)
             .zip(depths)
             .map(|((((rows, shaded), survivors), rays), depths)| {
                 let device = rays.origins.device();
-                let (r, surviving, occupied) = (rays.len(), survivors.index.dims()[0], rows.len());
+                let (r, surviving, occupied) = (rays.len(), survivors.dims()[0], rows.len());
                 let n = r * s;
                 let index = if occupied == surviving {
-                    survivors.index
+                    survivors
                 } else {
                     let rows =
                         Tensor::<1, Int>::from_data(TensorData::new(rows, [occupied]), &device);
-                    survivors.index.select(0, rows)
+                    survivors.select(0, rows)
                 };
                 let consistency = canonical_weights.as_mut().map(|c| {
                     ConsistencyTerms::new(

@@ -177,34 +177,32 @@ pub fn cull_samples(
     // Where the sample's distance is measured: where the given body has its point. The warp's bound, block
     // by block of the volume, settles most samples far from the body; the bones' maps are blended only at
     // the nodes of the cells of the rest.
-    let settled: Option<Vec<Option<bool>>> = warp.map(|w| {
+    let displaced: Option<(Vec<Option<bool>>, BlendedAffines)> = warp.map(|w| {
         let bound = w.bound(volume);
-        pose.par_iter()
+        let settled: Vec<Option<bool>> = pose
+            .par_iter()
             .map(|&p| volume.settled_under(p, threshold, &bound))
-            .collect()
-    });
-    let affines = warp.zip(settled.as_ref()).map(|(w, settled)| {
+            .collect();
         let open: Vec<Vec3> = pose
             .iter()
-            .zip(settled)
+            .zip(&settled)
             .filter(|(_, s)| s.is_none())
             .map(|(&p, _)| p)
             .collect();
-        w.blend(volume, &open)
+        (settled, w.blend(volume, &open))
     });
-    let mut near: Vec<(i64, Vec3)> = pose
-        .par_iter()
-        .enumerate()
-        .filter_map(|(i, &p)| {
-            let near = match (&affines, &settled) {
-                (Some(a), Some(settled)) => {
-                    settled[i].unwrap_or_else(|| volume.is_near_displaced(p, threshold, a))
-                }
-                _ => volume.is_near(p, threshold),
-            };
-            near.then_some((i as i64, p))
-        })
-        .collect();
+    let mut near: Vec<(i64, Vec3)> =
+        pose.par_iter()
+            .enumerate()
+            .filter_map(|(i, &p)| {
+                let near = match &displaced {
+                    Some((settled, affines)) => settled[i]
+                        .unwrap_or_else(|| volume.is_near_displaced(p, threshold, affines)),
+                    None => volume.is_near(p, threshold),
+                };
+                near.then_some((i as i64, p))
+            })
+            .collect();
     if near.is_empty() && !pose.is_empty() {
         // Every sample's measured distance: the maps blended at the nodes of all their cells.
         let affines = warp.map(|w| w.blend(volume, &pose));

@@ -103,38 +103,42 @@ pub fn linear_rows(layer: &Linear, x: Tensor<2>) -> Tensor<2> {
 /// where `W_i` are the rows of the weight that meet part `i`. Saves copying every activation into a wider
 /// tensor (and slicing its gradient apart again); a part with one row (a per-batch code) is broadcast.
 pub fn linear_over_parts(layer: &Linear, parts: &[Tensor<2>]) -> Tensor<2> {
-    let weight = layer.weight.val();
-    let mut row = 0;
-    let mut out: Option<Tensor<2>> = None;
-    for part in parts {
-        let [_, d] = part.dims();
-        let z = rows_matmul(part.clone(), weight.clone().narrow(0, row, d));
-        row += d;
-        out = Some(match out {
-            Some(o) => o + z,
-            None => z,
-        });
-    }
-    assert_eq!(
-        row,
-        weight.dims()[0],
-        "linear_over_parts: the parts' widths must add up to the layer's input width"
-    );
-    let out = out.expect("at least one part");
-    match &layer.bias {
-        Some(b) => out + b.val().unsqueeze(),
-        None => out,
-    }
+    linear_parts(layer, parts, None)
 }
 
 /// `layer` applied to `[x ⊕ code]` for each point's code (the codes' part of the weight is the last rows):
 /// [`linear_over_parts`] with the codes' part mapped once per code ([`Codes::project`]).
 pub fn linear_with_codes(layer: &Linear, x: Tensor<2>, codes: &Codes) -> Tensor<2> {
+    linear_parts(layer, &[x], Some(codes))
+}
+
+/// [`linear_over_parts`] of `parts`, then of `codes` as the last part.
+fn linear_parts(layer: &Linear, parts: &[Tensor<2>], codes: Option<&Codes>) -> Tensor<2> {
     let weight = layer.weight.val();
-    let [_, d] = x.dims();
     let [width, _] = weight.dims();
-    let out = rows_matmul(x, weight.clone().narrow(0, 0, d))
-        + codes.project(|c| rows_matmul(c, weight.narrow(0, d, width - d)));
+    let mut row = 0;
+    let mut out: Option<Tensor<2>> = None;
+    let mut add = |z: Tensor<2>| {
+        out = Some(match out.take() {
+            Some(o) => o + z,
+            None => z,
+        })
+    };
+    for part in parts {
+        let [_, d] = part.dims();
+        add(rows_matmul(part.clone(), weight.clone().narrow(0, row, d)));
+        row += d;
+    }
+    if let Some(codes) = codes {
+        let d = width - row;
+        add(codes.project(|c| rows_matmul(c, weight.clone().narrow(0, row, d))));
+        row += d;
+    }
+    assert_eq!(
+        row, width,
+        "linear_over_parts: the parts' widths must add up to the layer's input width"
+    );
+    let out = out.expect("at least one part");
     match &layer.bias {
         Some(b) => out + b.val().unsqueeze(),
         None => out,

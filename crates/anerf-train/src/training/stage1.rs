@@ -447,30 +447,33 @@ impl Stage1<'_> {
         let cfg = self.cfg;
         let model_cfg = model.config();
         let samples = model_cfg.samples_per_ray;
-        let rays: Vec<RayBatch> = batch
+        // Each frame's part of this shard: its rays and their depth jitter.
+        let (rays, jitter): (Vec<RayBatch>, Vec<Tensor<2>>) = batch
             .frames
             .iter()
             .map(|frame| {
                 let part = shard.part(frame.rays.len());
-                RayBatch::new(&frame.rays.slice(part), frame.frame, device)
+                let jitter = from_rows(
+                    &frame.jitter[part.start * samples..part.end * samples],
+                    part.len(),
+                    samples,
+                    device,
+                );
+                (
+                    RayBatch::new(&frame.rays.slice(part), frame.frame, device),
+                    jitter,
+                )
             })
-            .collect();
+            .unzip();
         let parts = batch
             .frames
             .iter()
             .zip(&rays)
-            .map(|(frame, rays)| {
-                let part = shard.part(frame.rays.len());
-                FrameRays {
-                    rays,
-                    frame: &frame.inputs[shard.index],
-                    jitter: Some(from_rows(
-                        &frame.jitter[part.start * samples..part.end * samples],
-                        part.len(),
-                        samples,
-                        device,
-                    )),
-                }
+            .zip(jitter)
+            .map(|((frame, rays), jitter)| FrameRays {
+                rays,
+                frame: &frame.inputs[shard.index],
+                jitter: Some(jitter),
             })
             .collect();
         let outs = model.render_frames(
