@@ -22,4 +22,4 @@ pub use orbit::{mean_up, orbit, orbit_camera};
 pub use rotation::{axis_angle_to_matrix, matrix_to_axis_angle};
 pub use skeleton::{BoneTransforms, CanonicalPose, GlobalTransform, Pose, Skeleton};
 pub use skinning::BoneMatrices;
-pub use volume::{BlendWeightVolume, BlendedAffines, FieldBound, VolumeTensor};
+pub use volume::{BlendWeightVolume, FieldBound, VolumeTensor};

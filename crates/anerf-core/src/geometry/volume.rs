@@ -11,9 +11,6 @@ use rayon::prelude::*;
 use super::Aabb;
 use crate::error::GeometryError;
 use crate::kernels::warp::TrilinearGrid;
-use node_set::NodeSet;
-
-mod node_set;
 
 /// Skinning weights below this are stored as zeros. Body models' weights that fall off smoothly leave
 /// values down to subnormal floats (9 % of the synthetic subjects' volume values lie below `1.2e-38`), and
@@ -148,14 +145,9 @@ impl BlendWeightVolume {
     /// Adds the trilinear lookup at `p` of the first `out.len()` channels to `out` (zero on entry).
     fn accumulate(&self, p: Vec3, out: &mut [f32]) {
         let c = self.channels();
-        self.blend_rows(p, out, |n| &self.data[n * c..(n + 1) * c]);
-    }
-
-    /// Adds to `out` (zero on entry) the trilinear blend at `p` of a per-node table, `row(n)` the values of
-    /// node `n` (flat index, [`Self::node_index`]; its first `out.len()` are read).
-    fn blend_rows<'a>(&self, p: Vec3, out: &mut [f32], row: impl Fn(usize) -> &'a [f32]) {
         for (idx, w) in self.corners(p) {
-            for (o, v) in out.iter_mut().zip(row(self.node_index(idx))) {
+            let n = self.node_index(idx);
+            for (o, v) in out.iter_mut().zip(&self.data[n * c..(n + 1) * c]) {
                 *o += w * v;
             }
         }
@@ -228,30 +220,40 @@ impl BlendWeightVolume {
         }))
     }
 
-    /// A Lipschitz constant of the interpolated (border-clamped) distance channel: inside a cell the distance's
-    /// slope along an axis is a convex blend of the slopes of the cell's four edges along it, so with `s_a`
-    /// the steepest node-to-node slope along axis `a`, `|d(p) − d(q)| ≤ √(Σ s_a²) · |p − q|` everywhere (the
-    /// clamp is a projection, which moves no two points apart). An exact distance field gives at most `√3`.
-    fn distance_lipschitz(&self) -> f32 {
+    /// Per cell (indexed as [`Self::cell_index`]), a Lipschitz constant of the interpolated distance channel
+    /// inside it: there the distance's slope along an axis is a convex blend of the slopes of the cell's four
+    /// edges along that axis, so with `s_a` the steepest of them, `|∇d| ≤ √(Σ s_a²)`. An exact distance
+    /// field gives about 1 in most cells and at most `√3`. Between any two points the border-clamped
+    /// distance changes by at most the largest constant of the cells the clamped segment crosses times the
+    /// points' distance (the clamp is a projection, which moves no two points apart).
+    fn cell_lipschitz(&self) -> Vec<f32> {
         let spacing = self.spacing();
         let distance =
             |idx: [usize; 3]| self.data[self.node_index(idx) * self.channels() + self.num_joints];
-        let mut steepest = [0.0f32; 3];
-        for i in 0..self.dims[0] {
-            for j in 0..self.dims[1] {
-                for k in 0..self.dims[2] {
-                    let idx = [i, j, k];
-                    for (a, slope) in steepest.iter_mut().enumerate() {
-                        if idx[a] + 1 < self.dims[a] {
-                            let mut next = idx;
-                            next[a] += 1;
-                            *slope = slope.max((distance(next) - distance(idx)).abs() / spacing[a]);
+        let c = self.cell_dims();
+        let mut constants = Vec::with_capacity(c.iter().product());
+        for i in 0..c[0] {
+            for j in 0..c[1] {
+                for k in 0..c[2] {
+                    let corners = self.cell_corners([i, j, k], [0.0; 3]);
+                    let mut steepest = [0.0f32; 3];
+                    for (idx, _) in &corners {
+                        for (a, slope) in steepest.iter_mut().enumerate() {
+                            // The edge from a low corner along `a`, where the cell has one along `a`.
+                            let low = idx[a] == [i, j, k][a];
+                            if low && idx[a] + 1 < self.dims[a] {
+                                let mut next = *idx;
+                                next[a] += 1;
+                                *slope =
+                                    slope.max((distance(next) - distance(*idx)).abs() / spacing[a]);
+                            }
                         }
                     }
+                    constants.push(Vec3::from_array(steepest).length());
                 }
             }
         }
-        Vec3::from_array(steepest).length()
+        constants
     }
 
     /// Cells per axis (one even for an axis of a single node).
@@ -261,14 +263,16 @@ impl BlendWeightVolume {
 
     /// The flat index of the cell at `base`.
     /// The blocks of [`BoneBlocks`]: a block's nodes are those of its cells, so neighbouring blocks share
-    /// their boundary nodes.
-    fn bone_blocks(&self) -> BoneBlocks {
-        let dims = self.cell_dims().map(|c| c.div_ceil(BLOCK_CELLS));
+    /// their boundary nodes. `lipschitz` holds [`Self::cell_lipschitz`]'s constants.
+    fn bone_blocks(&self, lipschitz: &[f32]) -> BoneBlocks {
+        let cells = self.cell_dims();
+        let dims = cells.map(|c| c.div_ceil(BLOCK_CELLS));
         let nodes = |b: usize, a: usize| {
             let lo = (b * BLOCK_CELLS).min(self.dims[a] - 1);
             lo..=(lo + BLOCK_CELLS).min(self.dims[a] - 1)
         };
         let mut blocks = Vec::with_capacity(dims.iter().product());
+        let mut steepest = Vec::with_capacity(dims.iter().product());
         for bi in 0..dims[0] {
             for bj in 0..dims[1] {
                 for bk in 0..dims[2] {
@@ -292,10 +296,41 @@ impl BlendWeightVolume {
                         max: self.node_position(*ri.end(), *rj.end(), *rk.end()),
                     };
                     blocks.push((bones, bounds));
+                    steepest.push(self.steepest_near_block([bi, bj, bk], lipschitz));
                 }
             }
         }
-        BoneBlocks { dims, blocks }
+        // Along an axis of one node a point never leaves its cell.
+        let spacing = self.spacing();
+        let margin = (0..3)
+            .filter(|&a| self.dims[a] > 1)
+            .map(|a| BLOCK_CELLS as f32 * spacing[a])
+            .fold(f32::INFINITY, f32::min);
+        BoneBlocks {
+            dims,
+            blocks,
+            steepest,
+            margin,
+        }
+    }
+
+    /// The largest of `lipschitz` (per cell) over the cells of block `b` and of the blocks around it: every
+    /// point less than a block's width ([`BoneBlocks::margin`]) from a point of the block lies in one of them.
+    fn steepest_near_block(&self, b: [usize; 3], lipschitz: &[f32]) -> f32 {
+        let cells = self.cell_dims();
+        let range = |a: usize| {
+            let lo = (b[a] * BLOCK_CELLS).saturating_sub(BLOCK_CELLS);
+            lo..((b[a] + 2) * BLOCK_CELLS).min(cells[a])
+        };
+        let mut steepest = 0.0f32;
+        for i in range(0) {
+            for j in range(1) {
+                for k in range(2) {
+                    steepest = steepest.max(lipschitz[self.cell_index([i, j, k])]);
+                }
+            }
+        }
+        steepest
     }
 
     fn cell_index(&self, base: [usize; 3]) -> usize {
@@ -327,6 +362,7 @@ impl BlendWeightVolume {
     /// Uploads the volume for tensor lookups.
     pub fn to_tensor(&self, device: &Device) -> VolumeTensor {
         let nodes = self.dims.iter().product::<usize>();
+        let lipschitz = self.cell_lipschitz();
         let distance: Vec<f32> = self
             .data
             .chunks_exact(self.channels())
@@ -337,13 +373,13 @@ impl BlendWeightVolume {
             distance: crate::tensor::from_rows(&distance, nodes, 1, device),
             host: Arc::new(HostVolume {
                 cell_distances: self.cell_distance_ranges(),
-                lipschitz: self.distance_lipschitz(),
+                lipschitz: lipschitz.iter().copied().fold(0.0, f32::max),
+                blocks: self.bone_blocks(&lipschitz),
                 weight_sum: self
                     .data
                     .chunks_exact(self.channels())
                     .map(|node| node[..self.num_joints].iter().sum::<f32>())
                     .fold(0.0, f32::max),
-                blocks: self.bone_blocks(),
                 volume: self.clone(),
             }),
         }
@@ -387,7 +423,7 @@ pub struct VolumeTensor {
 struct HostVolume {
     volume: BlendWeightVolume,
     cell_distances: Vec<[f32; 2]>,
-    /// [`BlendWeightVolume::distance_lipschitz`]: how far a displacement can move the distance.
+    /// The largest of [`BlendWeightVolume::cell_lipschitz`]: how far a displacement can move the distance.
     lipschitz: f32,
     /// The largest sum of a node's weights (1 up to rounding and the zeroed negligible weights).
     weight_sum: f32,
@@ -405,6 +441,12 @@ struct BoneBlocks {
     dims: [usize; 3],
     /// Per block (row-major), its bones and its box (metres).
     blocks: Vec<(Vec<u16>, Aabb)>,
+    /// Per block, the distance's Lipschitz constant over the block and the blocks around it
+    /// ([`BlendWeightVolume::steepest_near_block`]): it bounds how far a displacement shorter than `margin`
+    /// moves the distance of a point of the block (about 1 near the body against the whole volume's `√3`).
+    steepest: Vec<f32>,
+    /// A block's width along its narrowest axis (metres).
+    margin: f32,
 }
 
 impl BoneBlocks {
@@ -422,32 +464,6 @@ impl BoneBlocks {
 #[derive(Debug, Clone, PartialEq)]
 pub struct FieldBound {
     blocks: Vec<[f32; 2]>,
-}
-
-/// Per-bone affine maps `M_k = [L_k | t_k]` (3×4, row-major, acting on points of the volume's frame, metres)
-/// blended node by node by the volume's weights ([`VolumeTensor::blend_affines`]). The field they make,
-/// `δ(p) = Σ_k w_k(p) M_k p̃` with the interpolated weights `w(p) = Σ_c λ_c w(c)` of `p`'s cell's nodes `c`,
-/// is `Σ_c λ_c W_c p̃` with `W_c = Σ_k w_k(c) M_k`: one trilinear lookup of 12 channels instead of `K`
-/// weights and `K` maps. Each node also holds `(b, ρ)` bounding the field near it (the method's doc).
-///
-/// Only the nodes of the cells of the points the table was made for are blended (`made_for`): a training
-/// render's samples touch a small part of a frame's volume, and blending all of it cost a tenth of a refined
-/// step.
-#[derive(Debug, Clone)]
-pub struct BlendedAffines {
-    made_for: NodeSet,
-    /// Per node of `made_for`, in its order.
-    nodes: Vec<[f32; 12]>,
-    bounds: Vec<[f32; 2]>,
-}
-
-impl BlendedAffines {
-    /// The row of node `n` (flat index); a panic for a node of no cell the table was made for.
-    fn row(&self, n: usize) -> usize {
-        self.made_for
-            .position(n)
-            .unwrap_or_else(|| panic!("node {n} lies in no cell the blended maps were made for"))
-    }
 }
 
 impl HostVolume {
@@ -517,51 +533,6 @@ impl VolumeTensor {
         self.host.is_near(p, threshold)
     }
 
-    /// `maps` (one `[L | t]` a bone, row-major) blended at the nodes of the cells holding `points` (the
-    /// volume's frame, metres; outside the box, the border cell they read), `W_n = Σ_k w_k(n) M_k`, with the
-    /// node's bound on the field: between a point `p` of a cell and any of its nodes lie at most the cell's
-    /// diagonal `h` and the clamp's offset `e = |p − p̄|` (`p̄` is `p` clamped into the box), so
-    /// `|W_c p̃| ≤ b_c + ρ_c e` with `b_c = |W_c x̃_c| + ‖L(W_c)‖_F h` and `ρ_c = ‖L(W_c)‖_F`, and
-    /// `|δ(p)| ≤ Σ_c λ_c (b_c + ρ_c e)`. Bones of zero weight at a node cost nothing there. The table answers
-    /// [`Self::displacement`] and [`Self::is_near_displaced`] at `points` and at any point of their cells.
-    pub fn blend_affines(&self, maps: &[[f32; 12]], points: &[Vec3]) -> BlendedAffines {
-        let v = &self.host.volume;
-        assert_eq!(maps.len(), v.num_joints, "one map a bone");
-        let made_for = NodeSet::collect(
-            v.data.len() / v.channels(),
-            points
-                .par_iter()
-                .flat_map_iter(|&p| v.corners(p).into_iter().map(|(idx, _)| v.node_index(idx))),
-        );
-        let diagonal = v.spacing().length();
-        let plane = v.dims[1] * v.dims[2];
-        let (nodes, bounds) = made_for
-            .members()
-            .into_par_iter()
-            .map(|n| {
-                let node = &v.data[n * v.channels()..(n + 1) * v.channels()];
-                let mut blended = [0.0f32; 12];
-                for (w, map) in node.iter().zip(maps).filter(|(w, _)| **w != 0.0) {
-                    for (b, m) in blended.iter_mut().zip(map) {
-                        *b += w * m;
-                    }
-                }
-                let x = v.node_position(n / plane, n / v.dims[2] % v.dims[1], n % v.dims[2]);
-                let slope = linear_norm(&blended);
-                let bound = [
-                    transform_point(&blended, x).length() + slope * diagonal,
-                    slope,
-                ];
-                (blended, bound)
-            })
-            .unzip();
-        BlendedAffines {
-            made_for,
-            nodes,
-            bounds,
-        }
-    }
-
     /// A bound on the field of `maps` (one `[L | t]` a bone, row-major) blended by this volume's weights,
     /// block by block ([`BoneBlocks`]): for `p` in a block's box, `|δ(p)| ≤ Σ_c λ_c Σ_k w_k(c) |M_k p̃| ≤
     /// S · max_k |M_k p̃|` over the block's bones (`S` the largest sum of a node's weights), and `|M_k p̃|` is
@@ -592,62 +563,60 @@ impl VolumeTensor {
     }
 
     /// `Some(self.is_near(p + δ(p), threshold))` for every field `δ` under `bound` where the distances at
-    /// the corners of `p`'s cell settle it, `None` where they do not ([`Self::is_near_displaced`] answers
-    /// those). The slack's margin covers rounding as there.
+    /// the corners of `p`'s cell, or else the distance at `p`, settle it, `None` where they do not
+    /// ([`Self::is_near_displaced`] answers those). A displacement shorter than a block's width is measured with the Lipschitz constant around
+    /// `p`'s block, a longer one with the whole volume's. The slack's margin covers rounding as there.
     pub fn settled_under(&self, p: Vec3, threshold: f32, bound: &FieldBound) -> Option<bool> {
         let host = &*self.host;
         let v = &host.volume;
-        let base = v.cell(p).0;
-        let [at, slope] = bound.blocks[host.blocks.of_cell(base)];
-        let outside = (p - p.clamp(v.bounds.min, v.bounds.max)).length();
-        let slack = host.lipschitz * (at + slope * outside) * (1.0 + 1e-4) + 1e-5;
-        host.settled_by_cell(base, threshold, slack)
-    }
-
-    /// The blended field `δ(p)` at a point of the volume's frame (metres): the trilinear blend of the nodes'
-    /// maps applied to `p`.
-    pub fn displacement(&self, affines: &BlendedAffines, p: Vec3) -> Vec3 {
-        let mut m = [0.0f32; 12];
-        self.host
-            .volume
-            .blend_rows(p, &mut m, |n| &affines.nodes[affines.row(n)][..]);
-        transform_point(&m, p)
-    }
-
-    /// Exactly `self.is_near(p + self.displacement(affines, p), threshold)`, but displacing `p` only where the
-    /// field's bound ([`Self::blend_affines`]) times the distance's Lipschitz constant cannot settle the answer
-    /// from the distance at `p` (mostly from the corners of `p`'s cell alone). The slack's margin covers the
-    /// rounding of both sides.
-    pub fn is_near_displaced(&self, p: Vec3, threshold: f32, affines: &BlendedAffines) -> bool {
-        let host = &*self.host;
-        let v = &host.volume;
-        assert_eq!(
-            affines.made_for.nodes(),
-            v.data.len() / v.channels(),
-            "affines of this volume"
-        );
         let (base, frac) = v.cell(p);
+        let block = host.blocks.of_cell(base);
+        let [at, slope] = bound.blocks[block];
         let outside = (p - p.clamp(v.bounds.min, v.bounds.max)).length();
-        let reach: f32 = v
-            .cell_corners(base, frac)
-            .iter()
-            .map(|(idx, w)| {
-                let [b, r] = affines.bounds[affines.row(v.node_index(*idx))];
-                w * (b + r * outside)
-            })
-            .sum();
-        let slack = host.lipschitz * reach * (1.0 + 1e-4) + 1e-5;
-        if let Some(near) = host.settled_by_cell(base, threshold, slack) {
-            return near;
-        }
-        let d = v.distance_in_cell(base, frac);
-        if d >= threshold + slack {
-            false
-        } else if d < threshold - slack {
-            true
+        let reach = at + slope * outside;
+        let lipschitz = if reach < host.blocks.margin {
+            host.blocks.steepest[block]
         } else {
-            self.is_near(p + self.displacement(affines, p), threshold)
-        }
+            host.lipschitz
+        };
+        let slack = lipschitz * reach * (1.0 + 1e-4) + 1e-5;
+        host.settled_by_cell(base, threshold, slack).or_else(|| {
+            let d = v.distance_in_cell(base, frac);
+            if d >= threshold + slack {
+                Some(false)
+            } else if d < threshold - slack {
+                Some(true)
+            } else {
+                None
+            }
+        })
+    }
+
+    /// The field `δ(p) = Σ_k w_k(p) M_k p̃` of per-bone maps `maps` (one `[L | t]` a bone, row-major, acting on
+    /// points of the volume's frame, metres) blended by the volume's interpolated weights at `p`.
+    pub fn displacement(&self, maps: &[[f32; 12]], p: Vec3) -> Vec3 {
+        let v = &self.host.volume;
+        assert_eq!(maps.len(), v.num_joints, "one map a bone");
+        let mut scratch = [0.0f32; 64];
+        let mut heap = Vec::new();
+        let weights = if v.num_joints <= scratch.len() {
+            &mut scratch[..v.num_joints]
+        } else {
+            heap.resize(v.num_joints, 0.0);
+            &mut heap[..]
+        };
+        v.accumulate(p, weights);
+        weights
+            .iter()
+            .zip(maps)
+            .filter(|(w, _)| **w != 0.0)
+            .map(|(w, m)| *w * transform_point(m, p))
+            .sum()
+    }
+
+    /// Exactly `self.is_near(p + self.displacement(maps, p), threshold)`.
+    pub fn is_near_displaced(&self, p: Vec3, threshold: f32, maps: &[[f32; 12]]) -> bool {
+        self.is_near(p + self.displacement(maps, p), threshold)
     }
 
     /// Prior weights `[N, K]` at host points (the volume's frame, metres) that need no gradient, such as the
@@ -881,12 +850,12 @@ pub(crate) mod tests {
         assert!(near > 1000 && far > 1000, "{near} near, {far} far");
     }
 
-    /// The displaced culling test against displacing every point by the bones' maps blended with the
-    /// point's own weights: a capsule's distance field with three bones' weights (zero over parts of the box),
-    /// per-bone affine maps moving points by up to about 10 cm, points inside and outside the box. The blended
-    /// field is the per-point blend, and thousands of points lie close enough to the threshold to need it.
-    /// The field's bound block by block ([`VolumeTensor::field_bound`]) holds at every point, and the points
-    /// it settles (thousands, not all of the far ones) get the same answer.
+    /// The displaced culling test: a capsule's distance field with three bones' weights (zero over parts of
+    /// the box), per-bone affine maps moving points by up to about 10 cm, points inside and outside the box.
+    /// The displacement is the device's per-point blend (the weights looked up as tensors, then the maps
+    /// blended by them) and, where every bone has the same map, that map itself (the weights sum to 1). The
+    /// field's bound block by block ([`VolumeTensor::field_bound`]) holds at every point, and the points it
+    /// settles (thousands, not all of the far ones) get the displaced point's answer.
     #[test]
     fn is_near_displaced_agrees_with_displacing_every_point() {
         use rand::{Rng, SeedableRng};
@@ -923,30 +892,32 @@ pub(crate) mod tests {
                 )
             })
             .collect();
-        // Made for the points, as culling makes it; for a few of them (a part of the nodes); for every node.
-        let affines = host.blend_affines(&maps, &points);
-        let few = host.blend_affines(&maps, &points[..100]);
-        let everywhere: Vec<Vec3> = (0..14 * 33 * 12)
-            .map(|n| v.node_position(n / (33 * 12), n / 12 % 33, n % 12))
-            .collect();
-        let whole = host.blend_affines(&maps, &everywhere);
-        assert_eq!(whole.nodes.len(), 14 * 33 * 12);
-        assert!(few.nodes.len() <= 800, "{} nodes", few.nodes.len());
-        let displaced = |p: Vec3| {
-            let w = v.sample(p);
-            p + (0..3)
-                .map(|k| w[k] * transform_point(&maps[k], p))
-                .sum::<Vec3>()
-        };
+        // The device's blend: weights `[N, K]` as tensors, the maps blended per point.
+        let device = cpu_device();
+        let rows: Vec<f32> = maps.iter().flatten().copied().collect();
+        let per_point = to_host(
+            crate::geometry::BoneMatrices::from_rows(crate::tensor::from_rows(
+                &rows, 3, 12, &device,
+            ))
+            .forward(
+                points_tensor(&points, &device),
+                host.sample(points_tensor(&points, &device)).weights,
+            ),
+        );
+        let same = [maps[0]; 3];
         let bound = host.field_bound(&maps);
-        let (mut near, mut far, mut unsettled, mut settled_by_bound) = (0, 0, 0, 0);
+        let (mut near, mut far, mut settled_by_bound) = (0, 0, 0);
         for (i, &p) in points.iter().enumerate() {
-            let q = displaced(p);
-            let delta = host.displacement(&affines, p);
-            let blended = p + delta;
-            assert!((blended - q).length() < 1e-6, "{p}: {blended} against {q}");
+            let delta = host.displacement(&maps, p);
+            let q = p + Vec3::from_slice(&per_point[3 * i..3 * i + 3]);
+            assert!(
+                (p + delta - q).length() < 1e-6,
+                "{p}: {} against {q}",
+                p + delta
+            );
+            assert!((host.displacement(&same, p) - transform_point(&maps[0], p)).length() < 1e-6);
             let expected = host.is_near(q, 0.05);
-            assert_eq!(host.is_near_displaced(p, 0.05, &affines), expected, "{p}");
+            assert_eq!(host.is_near_displaced(p, 0.05, &maps), expected, "{p}");
             // The field's bound holds at every point, and where it settles a point it is right.
             let outside = (p - p.clamp(bounds.min, bounds.max)).length();
             let [at, slope] = bound.blocks[host.host.blocks.of_cell(v.cell(p).0)];
@@ -959,15 +930,6 @@ pub(crate) mod tests {
                 assert_eq!(settled, expected, "{p}: settled by the bound");
                 settled_by_bound += 1;
             }
-            // The same bits from a table of a part of the volume, or of all of it.
-            let tables: &[&BlendedAffines] = if i < 100 { &[&few, &whole] } else { &[&whole] };
-            for t in tables {
-                assert_eq!(host.displacement(t, p), delta, "{p}");
-                assert_eq!(host.is_near_displaced(p, 0.05, t), expected, "{p}");
-            }
-            let d = v.distance_at(p);
-            let slack = host.host.lipschitz * (q - p).length();
-            unsettled += usize::from((d - 0.05).abs() < slack);
             if expected {
                 near += 1;
             } else {
@@ -979,9 +941,62 @@ pub(crate) mod tests {
             settled_by_bound > 1000 && settled_by_bound < far,
             "the bound settled {settled_by_bound} of {far} far points"
         );
+    }
+
+    /// The Lipschitz constants culling settles with: for pairs of points a random step apart, the
+    /// interpolated distance changes by at most the constant around the first point's block times the step
+    /// where the step is shorter than a block's width, and by the whole volume's constant for any step; on a
+    /// field whose slope differs from region to region, the constant near a block is below the volume's.
+    #[test]
+    fn the_distance_moves_by_at_most_its_lipschitz_constant() {
+        use rand::{Rng, SeedableRng};
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(5);
+        let bounds = Aabb {
+            min: Vec3::new(-0.5, -0.9, -0.3),
+            max: Vec3::new(0.5, 0.9, 0.3),
+        };
+        // Steep along x on one side, shallow elsewhere, and a wavy term: no single slope.
+        let v = BlendWeightVolume::from_fn(bounds, [21, 37, 13], 1, |p| {
+            vec![
+                1.0,
+                3.0 * p.x.max(0.0) + 0.4 * (5.0 * p.y).sin() + 0.3 * p.z * p.z,
+            ]
+        })
+        .unwrap();
+        let host = v.to_tensor(&cpu_device());
+        let blocks = &host.host.blocks;
+        let (mut local_used, mut tight) = (0, 0);
+        for _ in 0..20_000 {
+            let p = Vec3::new(
+                rng.random_range(-0.6..0.6),
+                rng.random_range(-1.0..1.0),
+                rng.random_range(-0.4..0.4),
+            );
+            let step = Vec3::new(
+                rng.random_range(-1.0..1.0),
+                rng.random_range(-1.0..1.0),
+                rng.random_range(-1.0..1.0),
+            ) * rng.random_range(0.0..0.3f32);
+            let change = (v.distance_at(p + step) - v.distance_at(p)).abs();
+            let length = step.length();
+            assert!(
+                change <= host.host.lipschitz * length * (1.0 + 1e-4) + 1e-6,
+                "{p} + {step}"
+            );
+            if length < blocks.margin {
+                let block = blocks.of_cell(v.cell(p).0);
+                let local = blocks.steepest[block];
+                assert!(
+                    change <= local * length * (1.0 + 1e-4) + 1e-6,
+                    "{p} + {step}: {change} over {local}"
+                );
+                local_used += 1;
+                tight += usize::from(local < 0.9 * host.host.lipschitz);
+            }
+        }
         assert!(
-            unsettled > 100,
-            "{unsettled} points need their displacement"
+            local_used > 1000 && tight > 1000,
+            "{local_used} local, {tight} tighter"
         );
     }
 

@@ -10,7 +10,7 @@ use glam::Vec3;
 use rayon::prelude::*;
 
 use crate::geometry::skinning::world_to_pose;
-use crate::geometry::{BlendedAffines, BoneMatrices, FieldBound, GlobalTransform, VolumeTensor};
+use crate::geometry::{BoneMatrices, FieldBound, GlobalTransform, VolumeTensor};
 use crate::render::RayBatch;
 use crate::tensor::to_host;
 
@@ -75,13 +75,6 @@ pub struct HostWarp {
 }
 
 impl HostWarp {
-    /// The warp's displacement field on the nodes of `volume` around `points` (pose space, metres):
-    /// `Σ_k w_k (D_k − I)` blended at each node by the prior weights there, with its bound
-    /// ([`VolumeTensor::blend_affines`]).
-    fn blend(&self, volume: &VolumeTensor, points: &[Vec3]) -> BlendedAffines {
-        volume.blend_affines(&self.rows, points)
-    }
-
     /// A bound on the warp's displacement field in each block of `volume` ([`VolumeTensor::field_bound`]).
     fn bound(&self, volume: &VolumeTensor) -> FieldBound {
         volume.field_bound(&self.rows)
@@ -175,39 +168,25 @@ pub fn cull_samples(
         })
         .collect();
     // Where the sample's distance is measured: where the given body has its point. The warp's bound, block
-    // by block of the volume, settles most samples far from the body; the bones' maps are blended only at
-    // the nodes of the cells of the rest.
-    let displaced: Option<(Vec<Option<bool>>, BlendedAffines)> = warp.map(|w| {
-        let bound = w.bound(volume);
-        let settled: Vec<Option<bool>> = pose
-            .par_iter()
-            .map(|&p| volume.settled_under(p, threshold, &bound))
-            .collect();
-        let open: Vec<Vec3> = pose
-            .iter()
-            .zip(&settled)
-            .filter(|(_, s)| s.is_none())
-            .map(|(&p, _)| p)
-            .collect();
-        (settled, w.blend(volume, &open))
-    });
-    let mut near: Vec<(i64, Vec3)> =
-        pose.par_iter()
-            .enumerate()
-            .filter_map(|(i, &p)| {
-                let near = match &displaced {
-                    Some((settled, affines)) => settled[i]
-                        .unwrap_or_else(|| volume.is_near_displaced(p, threshold, affines)),
-                    None => volume.is_near(p, threshold),
-                };
-                near.then_some((i as i64, p))
-            })
-            .collect();
+    // by block of the volume, settles most samples far from the body; the rest are displaced.
+    let bounded = warp.map(|w| (w, w.bound(volume)));
+    let mut near: Vec<(i64, Vec3)> = pose
+        .par_iter()
+        .enumerate()
+        .filter_map(|(i, &p)| {
+            let near = match &bounded {
+                Some((w, bound)) => volume
+                    .settled_under(p, threshold, bound)
+                    .unwrap_or_else(|| volume.is_near_displaced(p, threshold, &w.rows)),
+                None => volume.is_near(p, threshold),
+            };
+            near.then_some((i as i64, p))
+        })
+        .collect();
     if near.is_empty() && !pose.is_empty() {
-        // Every sample's measured distance: the maps blended at the nodes of all their cells.
-        let affines = warp.map(|w| w.blend(volume, &pose));
-        let measured = |p: Vec3| match &affines {
-            Some(a) => p + volume.displacement(a, p),
+        // Every sample's measured distance.
+        let measured = |p: Vec3| match warp {
+            Some(w) => p + volume.displacement(&w.rows, p),
             None => p,
         };
         let distance: Vec<f32> = pose
