@@ -261,7 +261,6 @@ impl BlendWeightVolume {
         self.dims.map(|n| n.saturating_sub(1).max(1))
     }
 
-    /// The flat index of the cell at `base`.
     /// The blocks of [`BoneBlocks`]: a block's nodes are those of its cells, so neighbouring blocks share
     /// their boundary nodes. `lipschitz` holds [`Self::cell_lipschitz`]'s constants.
     fn bone_blocks(&self, lipschitz: &[f32]) -> BoneBlocks {
@@ -333,6 +332,7 @@ impl BlendWeightVolume {
         steepest
     }
 
+    /// The flat index of the cell at `base`.
     fn cell_index(&self, base: [usize; 3]) -> usize {
         let c = self.cell_dims();
         (base[0] * c[1] + base[1]) * c[2] + base[2]
@@ -480,14 +480,23 @@ impl HostVolume {
     /// differs from one of the cell's by at most `slack`, where the cell's corner distances all lie beyond
     /// the threshold by more than `slack` on the same side; `None` where they do not.
     fn settled_by_cell(&self, base: [usize; 3], threshold: f32, slack: f32) -> Option<bool> {
-        let [lo, hi] = self.cell_distances[self.volume.cell_index(base)];
-        if lo >= threshold + slack {
-            Some(false)
-        } else if hi < threshold - slack {
-            Some(true)
-        } else {
-            None
-        }
+        settled_within(
+            self.cell_distances[self.volume.cell_index(base)],
+            threshold,
+            slack,
+        )
+    }
+}
+
+/// `Some(d < threshold)` for every distance `d` within `slack` of the range `[lo, hi]` where the range lies
+/// beyond the threshold by more than `slack` on one side; `None` where it does not.
+fn settled_within([lo, hi]: [f32; 2], threshold: f32, slack: f32) -> Option<bool> {
+    if lo >= threshold + slack {
+        Some(false)
+    } else if hi < threshold - slack {
+        Some(true)
+    } else {
+        None
     }
 }
 
@@ -564,8 +573,9 @@ impl VolumeTensor {
 
     /// `Some(self.is_near(p + δ(p), threshold))` for every field `δ` under `bound` where the distances at
     /// the corners of `p`'s cell, or else the distance at `p`, settle it, `None` where they do not
-    /// ([`Self::is_near_displaced`] answers those). A displacement shorter than a block's width is measured with the Lipschitz constant around
-    /// `p`'s block, a longer one with the whole volume's. The slack's margin covers rounding as there.
+    /// ([`Self::is_near_displaced`] answers those). A displacement shorter than a block's width is measured
+    /// with the Lipschitz constant around `p`'s block, a longer one with the whole volume's. The slack's
+    /// margin covers rounding as there.
     pub fn settled_under(&self, p: Vec3, threshold: f32, bound: &FieldBound) -> Option<bool> {
         let host = &*self.host;
         let v = &host.volume;
@@ -582,13 +592,7 @@ impl VolumeTensor {
         let slack = lipschitz * reach * (1.0 + 1e-4) + 1e-5;
         host.settled_by_cell(base, threshold, slack).or_else(|| {
             let d = v.distance_in_cell(base, frac);
-            if d >= threshold + slack {
-                Some(false)
-            } else if d < threshold - slack {
-                Some(true)
-            } else {
-                None
-            }
+            settled_within([d, d], threshold, slack)
         })
     }
 
