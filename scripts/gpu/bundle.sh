@@ -50,7 +50,7 @@ cat >"$out/gpu_kernels" <<'SH'
 #!/usr/bin/env bash
 here=$(dirname "$0")
 status=0
-"$here/core_tests" cube_tests flex_and_gpu_backends "$@" || status=1
+"$here/core_tests" cube_tests cube_sort flex_and_gpu_backends "$@" || status=1
 "$here/gpu_backends" "$@" || status=1
 exit $status
 SH

@@ -9,10 +9,12 @@
 //! Shared by the CPU kernels: slice access to flex tensors (`flex`), trilinear corner weights
 //! (`trilinear`) and vectorisable elementary functions (`fastmath`); by the CubeCL kernels of the GPU
 //! backends (`wgpu`, `cuda` features): launch grids, contiguous tensors and the trilinear side weights
-//! (`cube`).
+//! (`cube`), and device-wide scans and radix sorts of `u32` arrays (`cube_sort`).
 
 #[cfg(any(feature = "wgpu", feature = "cuda"))]
 mod cube;
+#[cfg(any(feature = "wgpu", feature = "cuda"))]
+mod cube_sort;
 mod fastmath;
 mod flex;
 pub mod hash_grid;

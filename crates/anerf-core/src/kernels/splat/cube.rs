@@ -1,7 +1,7 @@
 //! CubeCL kernels of the splat rasteriser for the GPU backends (the `wgpu` and `cuda` features). The
-//! projected splats are read back once and binned on the host by the CPU kernel's [`cpu::bin`] (tiles of
-//! 16 × 16 pixels, each tile's splats sorted front to back); the tile lists go up as two `u32` tensors, and
-//! one unit per pixel composites its tile's list with the CPU kernel's rules (alpha capped at
+//! projected splats are binned on the device ([`cube_bins`]: tiles of 16 × 16 pixels, each tile's splats
+//! sorted front to back, as the CPU kernel's `cpu::bin` does), and one unit per pixel composites its tile's
+//! list with the CPU kernel's rules (alpha capped at
 //! [`ALPHA_MAX`], splats under [`ALPHA_MIN`] skipped, the stop before transmittance falls under [`T_MIN`]).
 //!
 //! The backward pass replays the pixel's compositing to find its last splat and final transmittance, then
@@ -14,13 +14,12 @@
 use burn::backend::Cube;
 use burn::tensor::{DType, Shape};
 use burn_cubecl::cubecl;
-use burn_cubecl::ops::into_data_sync;
 use burn_cubecl::ops::numeric::zeros_client;
 use burn_cubecl::tensor::CubeTensor;
 use cubecl::ir::ElemType;
 use cubecl::prelude::*;
 
-use super::cpu::{self, Bins};
+use super::cube_bins;
 use super::extension::SplatBackend;
 use super::{RasterSpec, ALPHA_MAX, ALPHA_MIN, PIXEL_WIDTH, SPLAT_WIDTH, TILE, T_MIN};
 use crate::kernels::cube::{atomic_add, contiguous_f32, dims, empty_f32, AtomicScheme, Units};
@@ -207,36 +206,6 @@ fn backward_kernel<W: Numeric>(
     }
 }
 
-/// The splats on the host and their tile lists on the device: `(starts, order)` as `u32` tensors.
-fn bin_on_host(splats: &CubeTensor, spec: &RasterSpec) -> (Bins, CubeTensor, CubeTensor) {
-    let rows = into_data_sync(splats.clone())
-        .try_into_vec::<f32>()
-        .expect("f32 splat rows");
-    let bins = cpu::bin(&rows, spec);
-    let upload = |values: &[u32]| {
-        // An empty list still needs a buffer to bind.
-        let bytes: Vec<u8> = values
-            .iter()
-            .chain(values.is_empty().then_some(&0))
-            .flat_map(|v| v.to_ne_bytes())
-            .collect();
-        CubeTensor::new_contiguous(
-            splats.client.clone(),
-            splats.device.clone(),
-            Shape::new([values.len().max(1)]),
-            splats.client.create_from_slice(&bytes),
-            DType::U32,
-        )
-    };
-    let starts: Vec<u32> = bins
-        .starts
-        .iter()
-        .map(|&s| u32::try_from(s).expect("fewer than 2³² tile entries"))
-        .collect();
-    let (starts, order) = (upload(&starts), upload(&bins.order));
-    (bins, starts, order)
-}
-
 /// The splats' gradient with the given atomic scheme (the tests run both where the device has float
 /// atomics).
 pub(super) fn backward(
@@ -257,7 +226,7 @@ pub(super) fn backward(
     let Some(units) = Units::on(&splats, spec.pixels()) else {
         return out;
     };
-    let (bins, starts, order) = bin_on_host(&splats, spec);
+    let bins = cube_bins::bin(&splats, spec);
     let (native, word) = scheme.word();
     // SAFETY: pixels `< H·W` (checked in the kernel), tiles `< tiles_x · tiles_y` with `starts` one longer,
     // list positions `< order.len()`, splat rows `< N` (the binning's indices); the f32 output is read as
@@ -268,12 +237,12 @@ pub(super) fn backward(
             units.count,
             units.dim,
             splats.into_tensor_arg(),
-            starts.into_tensor_arg(),
-            order.into_tensor_arg(),
+            bins.starts.into_tensor_arg(),
+            bins.order.into_tensor_arg(),
             grad.into_tensor_arg(),
             out.clone().into_tensor_arg(),
             spec.width,
-            bins.tiles_x as u32,
+            bins.tiles_x,
             native,
             word,
         )
@@ -289,7 +258,7 @@ impl SplatBackend for Cube {
         let Some(units) = Units::on(&splats, spec.pixels()) else {
             return out;
         };
-        let (bins, starts, order) = bin_on_host(&splats, &spec);
+        let bins = cube_bins::bin(&splats, &spec);
         // SAFETY: as in [`backward`].
         unsafe {
             forward_kernel::launch_unchecked(
@@ -297,11 +266,11 @@ impl SplatBackend for Cube {
                 units.count,
                 units.dim,
                 splats.into_tensor_arg(),
-                starts.into_tensor_arg(),
-                order.into_tensor_arg(),
+                bins.starts.into_tensor_arg(),
+                bins.order.into_tensor_arg(),
                 out.clone().into_tensor_arg(),
                 spec.width,
-                bins.tiles_x as u32,
+                bins.tiles_x,
             )
         }
         out

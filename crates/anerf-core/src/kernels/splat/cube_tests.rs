@@ -11,10 +11,12 @@
 use burn::prelude::*;
 
 use super::cube;
+use super::cube_bins;
 use super::reference::rasterize as rasterize_reference;
 use super::tests::{check_central_differences, scene, smooth_scene, weights};
 use super::*;
 use crate::kernels::cube::testing::{atomic_schemes, cube_tensor};
+use crate::kernels::cube_sort::tests::download_u32;
 use crate::tensor::{from_rows, to_host};
 use crate::DeviceChoice;
 use anerf_device::cpu_device;
@@ -124,5 +126,69 @@ fn cube_gradient_matches_central_differences() {
         check_central_differences(&format!("the kernel on {choice}"), &analytic, |rows| {
             to_host(rasterize(splats_on(rows, &gpu), &spec))
         });
+    }
+}
+
+/// Binning on the device gives the CPU kernel's tile lists exactly: the same entries, each tile's front to
+/// back, equal depths in splat order (negative depths, `±0` and ties included), nothing for splats that are
+/// not finite or off the image; and so does the host path taken for scenes too large for `u32` entries.
+#[test]
+fn device_bins_match_the_cpu_kernels() {
+    for (choice, gpu) in gpus("device_bins_match_the_cpu_kernels") {
+        let wide = RasterSpec {
+            width: 150,
+            height: 70,
+        };
+        let one_tile = RasterSpec {
+            width: 16,
+            height: 16,
+        };
+        let mut crowded = scene(3000, wide.width as f32, wide.height as f32);
+        for (i, row) in crowded.chunks_mut(SPLAT_WIDTH).enumerate() {
+            match i % 7 {
+                0 => row[9] = 2.0,
+                1 => row[9] = -1.5 - (i % 3) as f32,
+                2 => row[9] = if i % 2 == 0 { 0.0 } else { -0.0 },
+                3 if i % 70 == 3 => row[0] = f32::NAN,
+                _ => {}
+            }
+        }
+        let cases = [
+            (
+                "the test scene",
+                SPEC,
+                scene(200, SPEC.width as f32, SPEC.height as f32),
+            ),
+            ("a crowded scene with ties", wide, crowded),
+            ("one tile", one_tile, scene(40, 16.0, 16.0)),
+            ("no splat", SPEC, Vec::new()),
+        ];
+        for (what, spec, rows) in cases {
+            let expected = cpu::bin(&rows, &spec);
+            assert!(what == "no splat" || !expected.order.is_empty());
+            let splats = cube_tensor(if rows.is_empty() {
+                Tensor::zeros([0, SPLAT_WIDTH], &gpu)
+            } else {
+                splats_on(&rows, &gpu)
+            });
+            for (path, bins) in [
+                ("device", cube_bins::bin_on_device(&splats, &spec)),
+                ("host", cube_bins::bin_on_host(&splats, &spec)),
+            ] {
+                assert_eq!(bins.tiles_x as usize, expected.tiles_x);
+                let starts = download_u32(bins.starts);
+                let order = download_u32(bins.order);
+                let expected_starts: Vec<u32> = expected.starts.iter().map(|&s| s as u32).collect();
+                assert_eq!(
+                    starts, expected_starts,
+                    "{what} on {choice}, {path}: tile starts"
+                );
+                assert_eq!(
+                    &order[..expected.order.len()],
+                    &expected.order[..],
+                    "{what} on {choice}, {path}: tile lists"
+                );
+            }
+        }
     }
 }

@@ -13,6 +13,8 @@
 pub mod cpu;
 #[cfg(any(feature = "wgpu", feature = "cuda"))]
 mod cube;
+#[cfg(any(feature = "wgpu", feature = "cuda"))]
+mod cube_bins;
 pub mod extension;
 pub mod reference;
 
