@@ -13,7 +13,9 @@
 #      CubeCL kernel profiles of that render and of 60 training steps,
 #   5. data-parallel training (`anerf train --devices`, Burn's all-reduce; on cuda:0, or cuda:0,cuda:1 where
 #      two GPUs exist) against one-device training of the same seed, run twice: the runs' first losses,
-#   6. `anerf bench` on the other devices of DEVICES,
+#   6. the trained demo baked into Gaussians on the first device (1,000 steps), and its 512² render beside
+#      the NeRF's,
+#   7. `anerf bench` on the other devices of DEVICES,
 #
 # and writes figures.json (every figure, the GPU's name, the adapter each device ran on) and check.log into
 # OUT. Each step has a time limit and the whole check a deadline (a step that would start past it is skipped
@@ -254,7 +256,16 @@ else
     skipped ddp "data-parallel training needs cuda as the first of DEVICES (Burn 0.22.1 all-reduces on CUDA only)"
 fi
 
-# 6. The other devices' benchmarks.
+# 6. The demo's avatar baked into Gaussians on the first device (the step's seconds are the bake's time on
+# this GPU), then `bench --run`, which draws a run's baked Gaussians beside its NeRF.
+if [ "$demo" = 1 ] && [ -d "$work/demo/run" ]; then
+    step "bake_${first}" 90 "$out/bake_${first}.txt" \
+        "$anerf" bake "$work/demo/run" --device "$first" --iterations 1000 --quiet
+    step "render_baked_${first}" 60 "$out/render_baked_${first}.json" \
+        "$anerf" bench --device "$first" --run "$work/demo/run" --steps 0 --render-size 512 --json
+fi
+
+# 7. The other devices' benchmarks.
 for device in ${devices#"$first"}; do
     bench "$device"
 done
