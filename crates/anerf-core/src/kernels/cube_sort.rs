@@ -258,9 +258,7 @@ pub(crate) fn read_one(values: &CubeTensor, index: usize) -> u32 {
             index as u32,
         )
     }
-    into_data_sync(out)
-        .try_into_vec::<u32>()
-        .expect("u32 values")[0]
+    download_u32(out)[0]
 }
 
 #[cube(launch_unchecked)]
@@ -297,6 +295,11 @@ pub(crate) fn upload_u32(like: &CubeTensor, values: &[u32]) -> CubeTensor {
     )
 }
 
+/// A `u32` array read back to the host.
+pub(crate) fn download_u32(t: CubeTensor) -> Vec<u32> {
+    into_data_sync(t).try_into_vec::<u32>().expect("u32 values")
+}
+
 #[cfg(test)]
 pub(crate) mod tests {
     use burn::prelude::Tensor as BurnTensor;
@@ -306,10 +309,6 @@ pub(crate) mod tests {
     use super::*;
     use crate::kernels::cube::testing::cube_tensor;
     use anerf_device::testing::gpu_devices_for_test;
-
-    pub(crate) fn download_u32(t: CubeTensor) -> Vec<u32> {
-        into_data_sync(t).try_into_vec::<u32>().expect("u32 values")
-    }
 
     /// A CubeCL tensor on each GPU that passes the probe for `test`, to place arrays beside.
     fn devices(test: &str) -> Vec<CubeTensor> {

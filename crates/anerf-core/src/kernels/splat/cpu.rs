@@ -6,7 +6,10 @@
 
 use rayon::prelude::*;
 
-use super::{RasterSpec, ALPHA_MAX, ALPHA_MIN, PIXEL_WIDTH, SPLAT_WIDTH, TILE, T_MIN};
+use super::{
+    RasterSpec, ALPHA_MAX, ALPHA_MIN, EXTENT_MARGIN, EXTENT_SCALE, PIXEL_WIDTH, SPLAT_WIDTH, TILE,
+    T_MIN,
+};
 
 /// One splat, unpacked from its [`SPLAT_WIDTH`] values.
 #[derive(Debug, Clone, Copy)]
@@ -69,7 +72,7 @@ impl Splat {
         // o · exp(−q/2) ≥ 1/255  ⇔  q ≤ 2 ln(255 o), with q = dᵀ M d; the ellipse's box is
         // sqrt(r² Σ_xx) by sqrt(r² Σ_yy) with Σ = M⁻¹.
         let r2 = 2.0 * (self.opacity / ALPHA_MIN).ln();
-        let widen = |e: f32| e * 1.001 + 0.01;
+        let widen = |e: f32| e * EXTENT_SCALE + EXTENT_MARGIN;
         Some((widen((r2 * c / det).sqrt()), widen((r2 * a / det).sqrt())))
     }
 }

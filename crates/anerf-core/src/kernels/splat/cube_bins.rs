@@ -14,7 +14,7 @@ use burn_cubecl::tensor::CubeTensor;
 use cubecl::prelude::*;
 
 use super::cpu;
-use super::{RasterSpec, ALPHA_MIN, SPLAT_WIDTH, TILE};
+use super::{RasterSpec, ALPHA_MIN, EXTENT_MARGIN, EXTENT_SCALE, SPLAT_WIDTH, TILE};
 use crate::kernels::cube::{dims, Units};
 use crate::kernels::cube_sort::{empty_u32, exclusive_scan, read_one, sort_pairs, upload_u32};
 
@@ -96,8 +96,8 @@ fn tile_rect(splats: &Tensor<f32>, s: usize, width: u32, height: u32) -> TileRec
     let valid = finite && opacity >= ALPHA_MIN && a > 0.0f32 && det > 0.0f32;
     // o · exp(−q/2) ≥ 1/255 ⇔ q ≤ 2 ln(255 o); the ellipse's box, widened as the CPU kernel widens it.
     let r2 = 2.0f32 * f32::ln(opacity / ALPHA_MIN);
-    let ex = f32::sqrt(r2 * c / det) * 1.001f32 + 0.01f32;
-    let ey = f32::sqrt(r2 * a / det) * 1.001f32 + 0.01f32;
+    let ex = f32::sqrt(r2 * c / det) * EXTENT_SCALE + EXTENT_MARGIN;
+    let ey = f32::sqrt(r2 * a / det) * EXTENT_SCALE + EXTENT_MARGIN;
     let lx = max(f32::ceil(mx - ex), 0.0f32);
     let hx = min(f32::floor(mx + ex), f32::cast_from(width - 1));
     let ly = max(f32::ceil(my - ey), 0.0f32);

@@ -16,7 +16,7 @@ use super::reference::rasterize as rasterize_reference;
 use super::tests::{check_central_differences, scene, smooth_scene, weights};
 use super::*;
 use crate::kernels::cube::testing::{atomic_schemes, cube_tensor};
-use crate::kernels::cube_sort::tests::download_u32;
+use crate::kernels::cube_sort::download_u32;
 use crate::tensor::{from_rows, to_host};
 use crate::DeviceChoice;
 use anerf_device::cpu_device;

@@ -32,6 +32,12 @@ pub const ALPHA_MIN: f32 = 1.0 / 255.0;
 pub const ALPHA_MAX: f32 = 0.99;
 /// A pixel stops before the splat that would bring its transmittance under this (3DGS: 1e-4).
 pub const T_MIN: f32 = 1e-4;
+/// A splat's cut-off box is its exact `ALPHA_MIN` extent times this plus [`EXTENT_MARGIN`] pixels, so that
+/// binning never drops a pixel the per-pixel test keeps; the CPU and GPU binnings share it so that their
+/// tile lists agree.
+pub const EXTENT_SCALE: f32 = 1.001;
+/// See [`EXTENT_SCALE`] (pixels).
+pub const EXTENT_MARGIN: f32 = 0.01;
 
 /// The image the splats are rasterised into.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
