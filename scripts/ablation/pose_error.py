@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """How far a run's body fits are from the true poses of a synthetic subject written with `--pose-noise`.
 
-Usage: pose_error.py <subject folder> <run folder>
+Usage: pose_error.py <subject folder> <run folder> [--by-bone]
 
 Reads `<run>/refined_poses.json` (the training frames' given and refined fits, written after stage 1 when
 `model.pose_refinement.enabled`) and `<subject>/true_params/<i>.npy`, and prints, for the given and the
@@ -10,7 +10,10 @@ root, whose rotation the datasets keep in Rh, plus Rh itself), and the mean dist
 two poses place (centimetres; linear blend skinning of `lbs/tvertices.npy` with `lbs/weights.npy`, then
 x = R(Rh) x + Th, as the datasets do), split into the part common to all frames (each vertex's mean
 displacement over the frames: a shift the canonical body takes on, which the training images cannot reveal)
-and the per-frame rest (what the images can correct). numpy only.
+and the per-frame rest (what the images can correct). `--by-bone` adds, per joint, the per-frame vertex error
+of the vertices whose largest weight is that joint's and the joint's own angle error, given and refined: where
+the rest of the error sits (a joint whose vertices cover few pixels, such as a hand's or a foot's end, draws
+few rays and keeps its given rotation). numpy only.
 """
 import json
 import os
@@ -76,9 +79,11 @@ def errors(lbs, fit, truth):
 
 
 def main():
-    if len(sys.argv) != 3:
+    args = [a for a in sys.argv[1:] if a != "--by-bone"]
+    if len(args) != 2 or len(sys.argv) - 1 - len(args) > 1:
         sys.exit(__doc__)
-    subject, run = sys.argv[1:]
+    subject, run = args
+    by_bone = "--by-bone" in sys.argv[1:]
     lbs_dir = os.path.join(subject, "lbs")
     parents = np.load(os.path.join(lbs_dir, "parents.npy")).astype(np.int64)
     parents = np.where((parents < 0) | (parents >= 2**31), -1, parents)
@@ -88,10 +93,13 @@ def main():
     with open(os.path.join(run, "refined_poses.json")) as f:
         frames = json.load(f)
     rows = {"given": [], "refined": []}
+    joint_angles = {"given": [], "refined": []}
     for entry in frames:
         truth = true_pose(subject, entry["frame"])
         for kind in rows:
-            rows[kind].append(errors(lbs, pose_of(entry[kind]), truth))
+            fit = pose_of(entry[kind])
+            rows[kind].append(errors(lbs, fit, truth))
+            joint_angles[kind].append([angle_between(rodrigues(a), rodrigues(b)) for a, b in zip(fit[0], truth[0])])
     for kind, values in rows.items():
         angles = np.array([a for a, _ in values])
         d = np.stack([d for _, d in values])  # [F, V, 3]
@@ -100,6 +108,25 @@ def main():
         print(f"{kind}: mean joint angle error {angles.mean():.3f} deg, mean vertex error {cm(d):.3f} cm"
               f" over {len(values)} training frames (common to all frames {cm(common):.3f} cm,"
               f" per frame {cm(d - common):.3f} cm)")
+    if by_bone:
+        print_by_bone(lbs[3].argmax(axis=1), rows, joint_angles)
+
+
+def print_by_bone(owner, rows, joint_angles):
+    """Per joint: its vertices' (largest weight) mean per-frame error (cm) and its own angle error (degrees),
+    given and refined."""
+    per_frame = {}
+    for kind, values in rows.items():
+        d = np.stack([d for _, d in values])
+        per_frame[kind] = 100 * np.linalg.norm(d - d.mean(axis=0), axis=-1).mean(axis=0)  # [V] cm
+    angles = {kind: np.degrees(np.mean(a, axis=0)) for kind, a in joint_angles.items()}
+    print("joint  vertices  per-frame cm given  refined  angle deg given  refined")
+    for j in range(len(angles["given"])):
+        mine = owner == j
+        if not mine.any():
+            continue
+        print(f"{j:5d} {mine.sum():9d} {per_frame['given'][mine].mean():18.2f} {per_frame['refined'][mine].mean():8.2f}"
+              f" {angles['given'][j]:16.2f} {angles['refined'][j]:8.2f}")
 
 
 if __name__ == "__main__":
