@@ -70,20 +70,21 @@ def true_pose(subject, frame):
 
 
 def errors(lbs, fit, truth):
-    """Mean joint-angle error (degrees) and the vertices' displacements from the truth (metres, `[V, 3]`)."""
+    """Each joint's angle error (radians, `[K]`), Rh's, and the vertices' displacements from the truth
+    (metres, `[V, 3]`)."""
     (fj, frh, fth), (tj, trh, tth) = fit, truth
-    angles = [angle_between(rodrigues(a), rodrigues(b)) for a, b in zip(fj[1:], tj[1:])]
-    angles.append(angle_between(rodrigues(frh), rodrigues(trh)))
+    joints = [angle_between(rodrigues(a), rodrigues(b)) for a, b in zip(fj, tj)]
+    rh = angle_between(rodrigues(frh), rodrigues(trh))
     displacement = posed_vertices(lbs, fj, frh, fth) - posed_vertices(lbs, tj, trh, tth)
-    return np.degrees(np.mean(angles)), displacement
+    return joints, rh, displacement
 
 
 def main():
-    args = [a for a in sys.argv[1:] if a != "--by-bone"]
-    if len(args) != 2 or len(sys.argv) - 1 - len(args) > 1:
+    args = sys.argv[1:]
+    by_bone = args[2:] == ["--by-bone"]
+    if len(args) != 2 and not by_bone:
         sys.exit(__doc__)
-    subject, run = args
-    by_bone = "--by-bone" in sys.argv[1:]
+    subject, run = args[:2]
     lbs_dir = os.path.join(subject, "lbs")
     parents = np.load(os.path.join(lbs_dir, "parents.npy")).astype(np.int64)
     parents = np.where((parents < 0) | (parents >= 2**31), -1, parents)
@@ -93,41 +94,38 @@ def main():
     with open(os.path.join(run, "refined_poses.json")) as f:
         frames = json.load(f)
     rows = {"given": [], "refined": []}
-    joint_angles = {"given": [], "refined": []}
     for entry in frames:
         truth = true_pose(subject, entry["frame"])
         for kind in rows:
-            fit = pose_of(entry[kind])
-            rows[kind].append(errors(lbs, fit, truth))
-            joint_angles[kind].append([angle_between(rodrigues(a), rodrigues(b)) for a, b in zip(fit[0], truth[0])])
+            rows[kind].append(errors(lbs, pose_of(entry[kind]), truth))
+    per_bone = {}
     for kind, values in rows.items():
-        angles = np.array([a for a, _ in values])
-        d = np.stack([d for _, d in values])  # [F, V, 3]
+        joints = np.array([j for j, _, _ in values])  # [F, K] radians
+        # Every joint but the root, whose rotation the datasets keep in Rh, plus Rh itself.
+        angles = np.concatenate([joints[:, 1:], np.array([[rh] for _, rh, _ in values])], axis=1)
+        d = np.stack([d for _, _, d in values])  # [F, V, 3]
         common = d.mean(axis=0)
         cm = lambda x: 100 * float(np.mean(np.linalg.norm(x, axis=-1)))
-        print(f"{kind}: mean joint angle error {angles.mean():.3f} deg, mean vertex error {cm(d):.3f} cm"
+        print(f"{kind}: mean joint angle error {np.degrees(angles.mean()):.3f} deg, mean vertex error {cm(d):.3f} cm"
               f" over {len(values)} training frames (common to all frames {cm(common):.3f} cm,"
               f" per frame {cm(d - common):.3f} cm)")
+        # Per vertex, its mean per-frame error (cm); per joint, its mean angle error (degrees).
+        per_bone[kind] = (100 * np.linalg.norm(d - common, axis=-1).mean(axis=0), np.degrees(joints.mean(axis=0)))
     if by_bone:
-        print_by_bone(lbs[3].argmax(axis=1), rows, joint_angles)
+        print_by_bone(lbs[3].argmax(axis=1), per_bone)
 
 
-def print_by_bone(owner, rows, joint_angles):
-    """Per joint: its vertices' (largest weight) mean per-frame error (cm) and its own angle error (degrees),
-    given and refined."""
-    per_frame = {}
-    for kind, values in rows.items():
-        d = np.stack([d for _, d in values])
-        per_frame[kind] = 100 * np.linalg.norm(d - d.mean(axis=0), axis=-1).mean(axis=0)  # [V] cm
-    angles = {kind: np.degrees(np.mean(a, axis=0)) for kind, a in joint_angles.items()}
+def print_by_bone(owner, per_bone):
+    """Per joint: the mean per-frame error (cm) of the vertices whose largest weight is its, and its own
+    angle error (degrees), given and refined."""
+    (given_cm, given_deg), (refined_cm, refined_deg) = per_bone["given"], per_bone["refined"]
     print("joint  vertices  per-frame cm given  refined  angle deg given  refined")
-    for j in range(len(angles["given"])):
+    for j in range(len(given_deg)):
         mine = owner == j
         if not mine.any():
             continue
-        print(f"{j:5d} {mine.sum():9d} {per_frame['given'][mine].mean():18.2f} {per_frame['refined'][mine].mean():8.2f}"
-              f" {angles['given'][j]:16.2f} {angles['refined'][j]:8.2f}")
-
+        print(f"{j:5d} {mine.sum():9d} {given_cm[mine].mean():18.2f} {refined_cm[mine].mean():8.2f}"
+              f" {given_deg[j]:16.2f} {refined_deg[j]:8.2f}")
 
 if __name__ == "__main__":
     main()
