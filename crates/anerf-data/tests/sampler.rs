@@ -514,3 +514,81 @@ fn prefetched_steps_are_the_sequential_draws() {
         .unwrap_err();
     assert!(err.to_string().contains("no step can be drawn"), "{err}");
 }
+
+/// `detail_fraction` draws its share of the rays in proportion to the target's gradient magnitude: on an
+/// image whose colour is a ramp along `u` (slope `s` in one band of columns, `3s` in another, flat
+/// elsewhere), the detail rays fall only where the analytic half central difference `|f(u+1) − f(u−1)|/2`
+/// is non-zero, and the steep band's share of them is its share of the summed weights.
+#[test]
+fn detail_rays_follow_the_targets_gradient() {
+    let dir = tempfile::tempdir().unwrap();
+    let p = prepared(dir.path());
+    let (frame, view) = (FrameId(1), ViewId(2));
+    let cam = &p.cameras[view.0];
+    let bounds = p.frame(frame).unwrap().bounds;
+    let bound = box_mask(cam, &bounds);
+    let (w, h) = (cam.width as usize, cam.height as usize);
+    let columns: Vec<usize> = (0..w)
+        .filter(|&u| (0..h).any(|v| bound[v * w + u]))
+        .collect();
+    let (first, last) = (columns[0], *columns.last().unwrap());
+    assert!(last - first >= 20, "the box spans {first}..={last}");
+    // f(u): 0, then slope s over `shallow`, flat, slope 3s over `steep`, flat.
+    let s = 0.01f32;
+    let shallow = first + 2..first + 7;
+    let steep = first + 11..first + 16;
+    let f = |u: isize| -> f32 {
+        let rise = |range: &std::ops::Range<usize>, slope: f32| {
+            (u.clamp(range.start as isize, range.end as isize) - range.start as isize) as f32
+                * slope
+        };
+        rise(&shallow, s) + rise(&steep, 3.0 * s)
+    };
+    let weight = |u: usize| {
+        let (l, r) = (u.saturating_sub(1), (u + 1).min(w - 1));
+        (f(r as isize) - f(l as isize)).abs() / 2.0
+    };
+    let image = Rgb32FImage::from_fn(w as u32, h as u32, |u, _| image::Rgb([f(u as isize); 3]));
+    let mask = GrayImage::from_pixel(w as u32, h as u32, image::Luma([255]));
+    let view_of = anerf_data::ImageView {
+        camera: cam,
+        bounds: &bounds,
+        image: (&image).into(),
+        mask: &mask,
+        edge: None,
+        background: None,
+    };
+    let rays = 4000;
+    let options = SamplerOptions {
+        rays,
+        detail_fraction: 1.0,
+        mask_edges: MaskEdges::Train,
+        ..SamplerOptions::default()
+    };
+    let drawn = RaySampler::new(9, options).sample(&view_of, rays).unwrap();
+    let in_box = |u: usize| (0..h).filter(|&v| bound[v * w + u]).count() as f32;
+    let total: f32 = columns.iter().map(|&u| weight(u) * in_box(u)).sum();
+    let steep_weight: f32 = columns
+        .iter()
+        .filter(|&&u| (steep.start - 1..=steep.end).contains(&u))
+        .map(|&u| weight(u) * in_box(u))
+        .sum();
+    let mut on_steep = 0usize;
+    for &[u, _] in &drawn.pixels {
+        let u = u as usize;
+        assert!(weight(u) > 0.0, "a detail ray at the flat column {u}");
+        on_steep += usize::from((steep.start - 1..=steep.end).contains(&u));
+    }
+    let share = steep_weight / total;
+    let sigma = (share * (1.0 - share) / rays as f32).sqrt();
+    let drawn_share = on_steep as f32 / rays as f32;
+    assert!(
+        (drawn_share - share).abs() < 5.0 * sigma,
+        "{drawn_share} of the rays on the steep ramp, expected {share} ± {sigma}"
+    );
+    // The share is the slopes' 3 : 1 up to the box's outline and the ramps' ends.
+    assert!(
+        (0.6..0.9).contains(&share),
+        "the steep ramp's share {share}"
+    );
+}

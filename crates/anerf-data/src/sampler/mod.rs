@@ -22,10 +22,12 @@ use crate::prepare::{edge_band, PreparedSubject};
 
 mod background;
 mod cache;
+mod detail;
 mod prefetch;
 
 pub use background::{BackgroundPlate, Backgrounds};
 pub use cache::ImageCache;
+use detail::DetailPool;
 pub use prefetch::{draw_step, DrawError, DrawnStep, Prefetch, StepPlan};
 
 /// What training draws from the band `dilate(mask) − erode(mask)` of a 5×5 kernel around the mask's edge
@@ -99,6 +101,11 @@ pub struct SamplerOptions {
         deserialize_with = "MaskEdges::deserialize_compatible"
     )]
     pub mask_edges: MaskEdges,
+    /// Share of rays drawn where the image has detail, in proportion to its target colours' gradient
+    /// magnitude (edges of the silhouette and of the texture); the rest split by `body_fraction`. 0 (the
+    /// reference, and runs saved before it existed) draws none.
+    #[serde(default)]
+    pub detail_fraction: f32,
     /// Extra padding of the (already 0.05 m padded) box for near/far (metres).
     pub near_far_padding: f32,
     pub convention: PixelConvention,
@@ -111,6 +118,7 @@ impl Default for SamplerOptions {
             rays: 1024,
             body_fraction: 0.5,
             mask_edges: MaskEdges::Skip,
+            detail_fraction: 0.0,
             near_far_padding: 0.01,
             convention: PixelConvention::Integer,
         }
@@ -248,7 +256,7 @@ impl RaySampler {
                 &computed
             }
         };
-        let pools = Pools::new(view, band, self.options.mask_edges)?;
+        let pools = Pools::new(view, band, &self.options)?;
         self.draw(view, band, &pools, n)
     }
 
@@ -262,19 +270,8 @@ impl RaySampler {
     ) -> Result<HostRays, SamplerError> {
         let w = view.camera.width;
         let on_body: &[u8] = view.mask.as_raw();
-        let background = view
-            .background
-            .filter(|_| self.options.mask_edges == MaskEdges::Backdrop);
+        let background = backdrop(view, self.options.mask_edges);
         let behind = |i: usize| background.and_then(|b| b.at(i));
-        // The image where the mask says body or the background is known (the render is composited over
-        // it), black elsewhere.
-        let gt = |i: usize| -> [f32; 3] {
-            if on_body[i] != 0 || behind(i).is_some() {
-                view.image.rgb(i)
-            } else {
-                [0.0; 3]
-            }
-        };
         let hit_box = view.bounds.padded(self.options.near_far_padding);
         let mut out = HostRays::default();
         for _round in 0..ROUNDS {
@@ -282,14 +279,22 @@ impl RaySampler {
             if left == 0 {
                 return Ok(out);
             }
+            let n_detail = if pools.detail.is_empty() {
+                0
+            } else {
+                (left as f32 * self.options.detail_fraction) as usize
+            };
             let n_body = if pools.body.is_empty() {
                 0
             } else {
-                (left as f32 * self.options.body_fraction) as usize
+                ((left - n_detail) as f32 * self.options.body_fraction) as usize
             };
             let picks: Vec<u32> = (0..left)
                 .map(|k| {
-                    let pool = if k < n_body {
+                    if k < n_detail {
+                        return pools.detail.draw(&mut self.rng);
+                    }
+                    let pool = if k - n_detail < n_body {
                         &pools.body
                     } else {
                         &pools.boxed
@@ -304,7 +309,8 @@ impl RaySampler {
                     .pixel_ray(u as f32, v as f32, self.options.convention);
                 if let Some(hit) = hit_box.intersect(&ray) {
                     let i = i as usize;
-                    push_ray(&mut out, &ray, hit.near, hit.far, gt(i), [u, v]);
+                    let color = target(view, background, i);
+                    push_ray(&mut out, &ray, hit.near, hit.far, color, [u, v]);
                     out.foreground.push(on_body[i] != 0);
                     match (background, behind(i)) {
                         (None, _) => out.edge.push(band[i]),
@@ -410,13 +416,13 @@ impl RaySampler {
                 jobs.push((frame, view, bounds, share(rays, views.len(), k)));
             }
         }
-        let mask_edges = self.options.mask_edges;
+        let options = &self.options;
         let read: Vec<Arc<ReadImage>> = jobs
             .par_iter()
             .map(|&(frame, view, bounds, _)| {
-                cache.get_or_read((frame, view, mask_edges), || {
+                cache.get_or_read((frame, view, options.mask_edges), || {
                     let background = backgrounds.and_then(|b| b.plate(view));
-                    ReadImage::new(subject, frame, view, bounds, mask_edges, background)
+                    ReadImage::new(subject, frame, view, bounds, options, background)
                 })
             })
             .collect::<Result<_, _>>()?;
@@ -439,14 +445,21 @@ impl RaySampler {
 
 /// The pixels of one image that rays are drawn from, in pixel order: the box's projection less a skipped
 /// mask-edge band (`boxed`), and those of them on the body (`body`) — the reference's
-/// `msk = msk · bound_mask; bound_mask[msk == 100] = 0`.
+/// `msk = msk · bound_mask; bound_mask[msk == 100] = 0` — and, where the options draw any, those of `boxed`
+/// with detail, weighted (`detail`).
 struct Pools {
     body: Vec<u32>,
     boxed: Vec<u32>,
+    detail: DetailPool,
 }
 
 impl Pools {
-    fn new(view: &ImageView, band: &[bool], mask_edges: MaskEdges) -> Result<Self, SamplerError> {
+    fn new(
+        view: &ImageView,
+        band: &[bool],
+        options: &SamplerOptions,
+    ) -> Result<Self, SamplerError> {
+        let mask_edges = options.mask_edges;
         let bound = box_mask(view.camera, view.bounds);
         // Band pixels that are never drawn: all under `Skip`; under `Backdrop`, those whose background
         // is not known (their colour mixes the body with a backdrop nothing tells, their label is as unsure).
@@ -468,7 +481,35 @@ impl Pools {
         if boxed.is_empty() {
             return Err(SamplerError::EmptyBox);
         }
-        Ok(Self { body, boxed })
+        let detail = if options.detail_fraction > 0.0 {
+            let background = backdrop(view, mask_edges);
+            let pixels = view.mask.as_raw().len();
+            let colours: Vec<[f32; 3]> = (0..pixels).map(|i| target(view, background, i)).collect();
+            DetailPool::new(&colours, view.camera.width as usize, boxed.iter().copied())
+        } else {
+            DetailPool::default()
+        };
+        Ok(Self {
+            body,
+            boxed,
+            detail,
+        })
+    }
+}
+
+/// The camera's background that training composites over: `view`'s plate under [`MaskEdges::Backdrop`].
+fn backdrop<'a>(view: &ImageView<'a>, mask_edges: MaskEdges) -> Option<&'a BackgroundPlate> {
+    view.background
+        .filter(|_| mask_edges == MaskEdges::Backdrop)
+}
+
+/// Pixel `i`'s target colour: the image where the mask says body or the `background` is known (the render
+/// is composited over it), black elsewhere.
+fn target(view: &ImageView, background: Option<&BackgroundPlate>, i: usize) -> [f32; 3] {
+    if view.mask.as_raw()[i] != 0 || background.and_then(|b| b.at(i)).is_some() {
+        view.image.rgb(i)
+    } else {
+        [0.0; 3]
     }
 }
 
@@ -488,7 +529,7 @@ impl ReadImage {
         frame: FrameId,
         view: ViewId,
         bounds: Aabb,
-        mask_edges: MaskEdges,
+        options: &SamplerOptions,
         background: Option<&BackgroundPlate>,
     ) -> Result<Self, SamplerError> {
         let image = subject.image_rgb8(frame, view)?;
@@ -503,7 +544,7 @@ impl ReadImage {
             background,
         };
         check_sizes(&view_of)?;
-        let pools = Pools::new(&view_of, &edge, mask_edges)?;
+        let pools = Pools::new(&view_of, &edge, options)?;
         Ok(Self {
             view,
             bounds,
@@ -520,6 +561,7 @@ impl ReadImage {
             + self.mask.as_raw().len()
             + self.edge.len()
             + 4 * (self.pools.body.len() + self.pools.boxed.len())
+            + 12 * self.pools.detail.len()
     }
 
     fn view<'a>(

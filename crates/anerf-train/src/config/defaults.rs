@@ -60,6 +60,7 @@ impl StageConfig {
             validate_every: 5000,
             log_every: 100,
             mask_edges: MaskEdges::default(),
+            detail_fraction: 0.0,
             edge_scale: 0.1,
             mask_weight: schedule.train_mask_weight,
             hard_surface_weight: 0.0,

@@ -272,6 +272,11 @@ pub struct StageConfig {
     /// read as `skip` (true) or `train` (false).
     #[serde(deserialize_with = "MaskEdges::deserialize_compatible")]
     pub mask_edges: MaskEdges,
+    /// Stage 1: share of a step's rays drawn where the training image has detail, in proportion to its
+    /// colours' gradient magnitude (the silhouette's and the texture's edges, where a body or a fit off
+    /// by a fraction of a pixel shows); the rest as the reference draws them. 0 (the default) draws none.
+    #[serde(default)]
+    pub detail_fraction: f32,
     /// Stage 1, `mask_edges = "robust"`: a band ray's loss is the pseudo-Huber `2c²(√(1 + e/c²) − 1)` of
     /// its squared error `e` (colour plus weighted silhouette) with this scale `c`: about `e` for errors
     /// well below `c²`, growing as `2c·√e` above, so a band label the other views contradict pulls with a

@@ -180,6 +180,15 @@ fn errors_name_the_key_and_the_allowed_values() {
             "{err}"
         );
     }
+    for share in ["-0.1", "1.5", "nan"] {
+        let err = load(&p, &[format!("train.detail_fraction={share}")])
+            .unwrap_err()
+            .to_string();
+        assert!(
+            err.contains("train.detail_fraction") && err.contains("from 0 to 1"),
+            "{share}: {err}"
+        );
+    }
     let err = load(&p, &["train.views_per_step=0".into()])
         .unwrap_err()
         .to_string();
@@ -394,4 +403,6 @@ fn mask_edges_read_names_and_the_earlier_boolean() {
         "convention": "integer"}"#;
     let options: anerf_data::SamplerOptions = serde_json::from_str(saved).unwrap();
     assert_eq!(options.mask_edges, MaskEdges::Train);
+    // Saved before detail rays existed: none drawn, as then.
+    assert_eq!(options.detail_fraction, 0.0);
 }

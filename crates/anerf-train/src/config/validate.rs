@@ -134,6 +134,13 @@ impl StageConfig {
                 "1 up to the batch over views_per_step (each image gets a ray at least)",
             );
         }
+        if !(0.0..=1.0).contains(&self.detail_fraction) {
+            return bad(
+                "detail_fraction",
+                &self.detail_fraction,
+                "a share of the rays, from 0 to 1",
+            );
+        }
         for (key, rate) in [("lr", self.lr), ("lr_final", self.lr_final)] {
             if !(rate.is_finite() && rate > 0.0) {
                 return bad(key, &rate, "a positive, finite rate");

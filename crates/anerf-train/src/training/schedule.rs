@@ -99,6 +99,7 @@ mod tests {
             validate_every: 1,
             log_every: 1,
             mask_edges: MaskEdges::Skip,
+            detail_fraction: 0.0,
             mask_weight: 0.0,
             hard_surface_weight: 0.0,
             residual_weight: 0.0,

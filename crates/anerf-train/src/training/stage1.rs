@@ -131,6 +131,7 @@ fn fresh_start(exp: &Experiment, cfg: &StageConfig) -> (AnimatableNerf, TrainerS
         SamplerOptions {
             rays: cfg.batch,
             mask_edges: cfg.mask_edges,
+            detail_fraction: cfg.detail_fraction,
             ..SamplerOptions::default()
         },
     );
