@@ -56,6 +56,17 @@ def posed_vertices(lbs, joints_aa, rh, th):
     return local @ rodrigues(rh).T + th
 
 
+def load_lbs(subject):
+    """The subject's body model: joints `[K, 3]`, parents `[K]` (-1 at the root; stored as unsigned -1 or
+    2^32 - 1 by some writers), template vertices `[V, 3]` and skinning weights `[V, K]`, metres."""
+    lbs_dir = os.path.join(subject, "lbs")
+    parents = np.load(os.path.join(lbs_dir, "parents.npy")).astype(np.int64)
+    parents = np.where((parents < 0) | (parents >= 2**31), -1, parents)
+    return (np.load(os.path.join(lbs_dir, "joints.npy")).astype(np.float64), parents,
+            np.load(os.path.join(lbs_dir, "tvertices.npy")).astype(np.float64),
+            np.load(os.path.join(lbs_dir, "weights.npy")).astype(np.float64))
+
+
 def pose_of(entry):
     return (np.array(entry["joint_rotations"], dtype=np.float64),
             np.array(entry["global"]["rh"], dtype=np.float64),
@@ -85,12 +96,7 @@ def main():
     if len(args) != 2 and not by_bone:
         sys.exit(__doc__)
     subject, run = args[:2]
-    lbs_dir = os.path.join(subject, "lbs")
-    parents = np.load(os.path.join(lbs_dir, "parents.npy")).astype(np.int64)
-    parents = np.where((parents < 0) | (parents >= 2**31), -1, parents)
-    lbs = (np.load(os.path.join(lbs_dir, "joints.npy")).astype(np.float64), parents,
-           np.load(os.path.join(lbs_dir, "tvertices.npy")).astype(np.float64),
-           np.load(os.path.join(lbs_dir, "weights.npy")).astype(np.float64))
+    lbs = load_lbs(subject)
     with open(os.path.join(run, "refined_poses.json")) as f:
         frames = json.load(f)
     rows = {"given": [], "refined": []}
