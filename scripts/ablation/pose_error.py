@@ -13,7 +13,8 @@ displacement over the frames: a shift the canonical body takes on, which the tra
 and the per-frame rest (what the images can correct). `--by-bone` adds, per joint, the per-frame vertex error
 of the vertices whose largest weight is that joint's and the joint's own angle error, given and refined: where
 the rest of the error sits (a joint whose vertices cover few pixels, such as a hand's or a foot's end, draws
-few rays and keeps its given rotation). numpy only.
+few rays and keeps its given rotation), and the cosine between the corrections made and those the truth
+needed (near 0: the images moved the joint, if at all, in no relation to its error). numpy only.
 """
 import json
 import os
@@ -118,20 +119,31 @@ def main():
         # Per vertex, its mean per-frame error (cm); per joint, its mean angle error (degrees).
         per_bone[kind] = (100 * np.linalg.norm(d - common, axis=-1).mean(axis=0), np.degrees(joints.mean(axis=0)))
     if by_bone:
-        print_by_bone(lbs[3].argmax(axis=1), per_bone)
+        made = np.stack([pose_of(e["refined"])[0] - pose_of(e["given"])[0] for e in frames])
+        needed = np.stack([true_pose(subject, e["frame"])[0] - pose_of(e["given"])[0] for e in frames])
+        print_by_bone(lbs[3].argmax(axis=1), per_bone, agreement(made, needed))
 
 
-def print_by_bone(owner, per_bone):
-    """Per joint: the mean per-frame error (cm) of the vertices whose largest weight is its, and its own
-    angle error (degrees), given and refined."""
+def agreement(made, needed):
+    """Per joint, the cosine between the corrections refinement made and those the truth needed, over all
+    frames and axes (`[F, K, 3]` axis-angle differences from the given fit: a first-order measure, fine at
+    a few degrees): 1 where every correction points at the truth, about 0 where they are unrelated to it."""
+    dot = (made * needed).sum(axis=(0, 2))
+    norms = np.sqrt((made**2).sum(axis=(0, 2)) * (needed**2).sum(axis=(0, 2)))
+    return np.divide(dot, norms, out=np.zeros_like(dot), where=norms > 0)
+
+
+def print_by_bone(owner, per_bone, agree):
+    """Per joint: the mean per-frame error (cm) of the vertices whose largest weight is its, its own angle
+    error (degrees), given and refined, and how well its corrections point at the truth (`agreement`)."""
     (given_cm, given_deg), (refined_cm, refined_deg) = per_bone["given"], per_bone["refined"]
-    print("joint  vertices  per-frame cm given  refined  angle deg given  refined")
+    print("joint  vertices  per-frame cm given  refined  angle deg given  refined  agreement")
     for j in range(len(given_deg)):
         mine = owner == j
         if not mine.any():
             continue
         print(f"{j:5d} {mine.sum():9d} {given_cm[mine].mean():18.2f} {refined_cm[mine].mean():8.2f}"
-              f" {given_deg[j]:16.2f} {refined_deg[j]:8.2f}")
+              f" {given_deg[j]:16.2f} {refined_deg[j]:8.2f} {agree[j]:10.2f}")
 
 if __name__ == "__main__":
     main()
