@@ -100,9 +100,9 @@ def main():
     lbs = load_lbs(subject)
     with open(os.path.join(run, "refined_poses.json")) as f:
         frames = json.load(f)
+    truths = [true_pose(subject, entry["frame"]) for entry in frames]
     rows = {"given": [], "refined": []}
-    for entry in frames:
-        truth = true_pose(subject, entry["frame"])
+    for entry, truth in zip(frames, truths):
         for kind in rows:
             rows[kind].append(errors(lbs, pose_of(entry[kind]), truth))
     per_bone = {}
@@ -120,7 +120,7 @@ def main():
         per_bone[kind] = (100 * np.linalg.norm(d - common, axis=-1).mean(axis=0), np.degrees(joints.mean(axis=0)))
     if by_bone:
         made = np.stack([pose_of(e["refined"])[0] - pose_of(e["given"])[0] for e in frames])
-        needed = np.stack([true_pose(subject, e["frame"])[0] - pose_of(e["given"])[0] for e in frames])
+        needed = np.stack([t[0] - pose_of(e["given"])[0] for e, t in zip(frames, truths)])
         print_by_bone(lbs[3].argmax(axis=1), per_bone, agreement(made, needed))
 
 
