@@ -123,6 +123,11 @@ fn a_short_run_on_an_easymocap_capture_lowers_the_loss() {
         config::REFINED_FRAMES_PER_STEP,
         "with several frames a step"
     );
+    assert_eq!(
+        config.model.pose_refinement.silhouette_weight,
+        config::REFINED_SILHOUETTE_WEIGHT,
+        "and the body silhouette term"
+    );
     let run = trained(&config, dir.path());
     assert_loss_falls(&losses(&run));
 }

@@ -7,6 +7,7 @@ pub mod error;
 pub mod formats;
 pub mod info;
 pub mod loaders;
+pub mod mask_distance;
 pub mod motion;
 pub mod paths;
 pub mod prepare;

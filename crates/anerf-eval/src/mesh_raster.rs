@@ -1,7 +1,8 @@
 //! A posed, vertex-coloured triangle mesh drawn into a camera's image: a z-buffer over the pixels whose
 //! centre a triangle covers, colours interpolated perspective-correctly. What a real-time engine shows of
 //! the exported glb (without lighting), so that the mesh can be scored by the paper's protocol as the NeRF
-//! and the baked avatar are.
+//! and the baked avatar are; and the same walk over the triangles for a mesh's silhouette alone (pose
+//! refinement's body silhouette term).
 
 use anerf_core::geometry::{Camera, PixelConvention};
 use glam::{Vec2, Vec3};
@@ -23,8 +24,46 @@ pub fn rasterize_mesh(
     let (w, h) = (camera.width as usize, camera.height as usize);
     let mut depth = vec![f32::INFINITY; w * h];
     let mut out = vec![[0.0f32; 4]; w * h];
-    // Pixel positions and depths of the vertices (None: behind the near plane).
-    let projected: Vec<Option<(Vec2, f32)>> = vertices
+    let projected = project(vertices, camera, convention);
+    walk_faces(&projected, faces, w, h, |face, i, edges, area| {
+        let l = edges.map(|e| e / area);
+        let [za, zb, zc] = face.map(|v| projected[v as usize].expect("a drawn corner").1);
+        // Perspective-correct: interpolate 1/z and colour/z.
+        let inv = [l[0] / za, l[1] / zb, l[2] / zc];
+        let z = 1.0 / (inv[0] + inv[1] + inv[2]);
+        if z >= depth[i] {
+            return;
+        }
+        depth[i] = z;
+        let colour = face.map(|v| Vec3::from(colours[v as usize]));
+        let rgb = (colour[0] * inv[0] + colour[1] * inv[1] + colour[2] * inv[2]) * z;
+        out[i] = [rgb.x, rgb.y, rgb.z, 1.0];
+    });
+    out
+}
+
+/// The pixels (`[H·W]` row-major) whose sample point a triangle of the mesh covers, as
+/// [`rasterize_mesh`] draws them, without colours or depths: the mesh's silhouette.
+pub fn mesh_coverage(
+    vertices: &[Vec3],
+    faces: &[[u32; 3]],
+    camera: &Camera,
+    convention: PixelConvention,
+) -> Vec<bool> {
+    let (w, h) = (camera.width as usize, camera.height as usize);
+    let mut covered = vec![false; w * h];
+    let projected = project(vertices, camera, convention);
+    walk_faces(&projected, faces, w, h, |_, i, _, _| covered[i] = true);
+    covered
+}
+
+/// Pixel positions and camera depths (metres) of the vertices; `None` nearer than [`NEAR`].
+fn project(
+    vertices: &[Vec3],
+    camera: &Camera,
+    convention: PixelConvention,
+) -> Vec<Option<(Vec2, f32)>> {
+    vertices
         .iter()
         .map(|&x| {
             let z = camera.world_to_camera(x).z;
@@ -32,10 +71,22 @@ pub fn rasterize_mesh(
                 .then(|| camera.project(x, convention).map(|p| (p, z)))
                 .flatten()
         })
-        .collect();
-    for face in faces {
+        .collect()
+}
+
+/// Calls `visit(face, pixel index, edge values, twice the signed area)` for every pixel of a `w × h` image
+/// whose sample point a face covers (either winding; faces with a corner behind the near plane are
+/// skipped). The edge values over the area are the pixel's screen-space barycentrics.
+fn walk_faces(
+    projected: &[Option<(Vec2, f32)>],
+    faces: &[[u32; 3]],
+    w: usize,
+    h: usize,
+    mut visit: impl FnMut([u32; 3], usize, [f32; 3], f32),
+) {
+    for &face in faces {
         let corners = face.map(|i| projected[i as usize]);
-        let [Some((a, za)), Some((b, zb)), Some((c, zc))] = corners else {
+        let [Some((a, _)), Some((b, _)), Some((c, _))] = corners else {
             continue;
         };
         let area = edge(a, b, c);
@@ -51,30 +102,17 @@ pub fn rasterize_mesh(
         if lo.x > hi.x || lo.y > hi.y {
             continue;
         }
-        let colour = face.map(|i| Vec3::from(colours[i as usize]));
         for y in lo.y as usize..=hi.y as usize {
             for x in lo.x as usize..=hi.x as usize {
                 let p = Vec2::new(x as f32, y as f32);
-                // Screen-space barycentrics, positive inside for either winding.
-                let l = [edge(b, c, p), edge(c, a, p), edge(a, b, p)].map(|e| e / area);
-                if l.iter().any(|&v| v < 0.0) {
-                    continue;
+                // Inside where every edge value has the area's sign, for either winding.
+                let edges = [edge(b, c, p), edge(c, a, p), edge(a, b, p)];
+                if !edges.iter().any(|&e| e * area < 0.0) {
+                    visit(face, y * w + x, edges, area);
                 }
-                // Perspective-correct: interpolate 1/z and colour/z.
-                let inv = [l[0] / za, l[1] / zb, l[2] / zc];
-                let inv_z = inv[0] + inv[1] + inv[2];
-                let z = 1.0 / inv_z;
-                let i = y * w + x;
-                if z >= depth[i] {
-                    continue;
-                }
-                depth[i] = z;
-                let rgb = (colour[0] * inv[0] + colour[1] * inv[1] + colour[2] * inv[2]) * z;
-                out[i] = [rgb.x, rgb.y, rgb.z, 1.0];
             }
         }
     }
-    out
 }
 
 /// Twice the signed area of triangle `(a, b, p)`.
@@ -142,6 +180,29 @@ mod tests {
                 }
             }
         }
+    }
+
+    /// The coverage is the drawn image's alpha, for a mesh with faces of both windings, overlapping and
+    /// partly off the image.
+    #[test]
+    fn the_coverage_is_where_the_mesh_is_drawn() {
+        let cam = camera(20.0, 32);
+        let vertices = vec![
+            Vec3::new(-0.3, -0.4, 1.5),
+            Vec3::new(0.9, -0.2, 1.2),
+            Vec3::new(0.1, 0.6, 2.0),
+            Vec3::new(-0.8, 0.5, 1.0),
+            Vec3::new(0.0, 0.0, -1.0),
+        ];
+        let faces = vec![[0, 1, 2], [0, 3, 2], [1, 3, 0], [0, 1, 4]];
+        let colours = vec![[0.5, 0.5, 0.5]; vertices.len()];
+        let drawn = rasterize_mesh(&vertices, &faces, &colours, &cam, PixelConvention::Center);
+        let covered = mesh_coverage(&vertices, &faces, &cam, PixelConvention::Center);
+        assert_eq!(
+            covered,
+            drawn.iter().map(|p| p[3] > 0.0).collect::<Vec<_>>()
+        );
+        assert!(covered.iter().filter(|&&c| c).count() > 50);
     }
 
     /// Colour along a slanted triangle follows the surface (perspective-correct), not the screen: a linear

@@ -41,6 +41,11 @@ pub struct PoseRefinementConfig {
     /// refined poses' axis-angle and translation values (given + correction, a first-order stand-in for the
     /// composition).
     pub smooth_weight: f32,
+    /// Weight of the body silhouette term: the posed body model's outline in each training view of a step's
+    /// frame against that view's mask edge (mean robust residual, pixels; 0: off). It places the body by
+    /// the masks, which the photometric loss cannot do beyond where its own field agrees
+    /// (docs/POSE-REFINEMENT.md, "The body's silhouette"). Runs saved before it existed read 0.
+    pub silhouette_weight: f32,
 }
 
 impl Default for PoseRefinementConfig {
@@ -52,6 +57,7 @@ impl Default for PoseRefinementConfig {
             prior_weight: 0.1,
             start: 0.0,
             smooth_weight: 0.0,
+            silhouette_weight: 0.0,
         }
     }
 }
@@ -64,6 +70,7 @@ impl PoseRefinementConfig {
             ("translation_scale", self.translation_scale, 100.0),
             ("prior_weight", self.prior_weight, 1e6),
             ("smooth_weight", self.smooth_weight, 1e6),
+            ("silhouette_weight", self.silhouette_weight, 1e6),
         ] {
             let positive = key.ends_with("scale");
             if !(value.is_finite() && value <= most && (value > 0.0 || !positive && value == 0.0)) {
@@ -270,6 +277,7 @@ mod tests {
             prior_weight: 0.3,
             start: 0.0,
             smooth_weight: 0.7,
+            silhouette_weight: 0.0,
         }
     }
 

@@ -9,6 +9,7 @@ use glam::Vec2;
 
 use super::rng::SplitMix64;
 use super::SynthError;
+use crate::mask_distance::edge_distances;
 
 /// Keeps the noise's random streams apart from every other use of the subject's seed.
 const SALT: u64 = 0x6d61_736b_6e6f_6973; // "masknois"
@@ -115,119 +116,9 @@ impl EdgeOffsets {
     }
 }
 
-/// Per pixel, how far (pixels) the mask's edge lies from its centre: the distance to the nearest pixel
-/// centre of the other class, less half a pixel (the edge runs between the two). At least 0.5; infinite
-/// when the mask holds one class only.
-fn edge_distances(mask: &[u8], width: usize, height: usize) -> Vec<f32> {
-    let to_body = squared_distances(mask, width, height, |m| m > 0);
-    let to_background = squared_distances(mask, width, height, |m| m == 0);
-    mask.iter()
-        .zip(to_body.iter().zip(&to_background))
-        .map(|(&m, (&b, &g))| if m > 0 { g } else { b }.sqrt() - 0.5)
-        .collect()
-}
-
-/// Exact squared Euclidean distance (pixels²) from each pixel to the nearest pixel whose value is a
-/// `site` (infinite without any): Felzenszwalb and Huttenlocher's transform, rows then columns.
-fn squared_distances(
-    mask: &[u8],
-    width: usize,
-    height: usize,
-    site: impl Fn(u8) -> bool,
-) -> Vec<f32> {
-    let mut rows: Vec<f32> = mask
-        .iter()
-        .map(|&m| if site(m) { 0.0 } else { f32::INFINITY })
-        .collect();
-    let mut line = vec![0.0; width.max(height)];
-    for row in rows.chunks_mut(width) {
-        lower_envelope(row, &mut line[..width]);
-        row.copy_from_slice(&line[..width]);
-    }
-    let mut column = vec![0.0; height];
-    for x in 0..width {
-        for (y, c) in column.iter_mut().enumerate() {
-            *c = rows[y * width + x];
-        }
-        lower_envelope(&column, &mut line[..height]);
-        for (y, d) in line[..height].iter().enumerate() {
-            rows[y * width + x] = *d;
-        }
-    }
-    rows
-}
-
-/// One-dimensional squared distance transform: `out[x] = min_q (x − q)² + f[q]` over the finite `f[q]`
-/// (infinite when none is), from the lower envelope of the parabolas rooted at those `q`.
-fn lower_envelope(f: &[f32], out: &mut [f32]) {
-    let parabola = |q: usize| f[q] + (q * q) as f32;
-    // The envelope's parabolas (their roots) and where each starts to be the lowest.
-    let mut roots: Vec<usize> = Vec::new();
-    let mut starts: Vec<f32> = Vec::new();
-    for q in (0..f.len()).filter(|&q| f[q].is_finite()) {
-        let mut start = f32::NEG_INFINITY;
-        while let (Some(&p), Some(&from)) = (roots.last(), starts.last()) {
-            start = (parabola(q) - parabola(p)) / (2.0 * (q - p) as f32);
-            if start > from {
-                break;
-            }
-            roots.pop();
-            starts.pop();
-            start = f32::NEG_INFINITY;
-        }
-        roots.push(q);
-        starts.push(start);
-    }
-    let mut k = 0;
-    for (x, o) in out.iter_mut().enumerate() {
-        if roots.is_empty() {
-            *o = f32::INFINITY;
-            continue;
-        }
-        while k + 1 < starts.len() && starts[k + 1] < x as f32 {
-            k += 1;
-        }
-        let q = roots[k];
-        *o = (x as f32 - q as f32).powi(2) + f[q];
-    }
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    /// Brute force over every pixel pair.
-    fn brute_force(mask: &[u8], width: usize, site: impl Fn(u8) -> bool) -> Vec<f32> {
-        let xy = |i: usize| ((i % width) as f32, (i / width) as f32);
-        (0..mask.len())
-            .map(|i| {
-                (0..mask.len())
-                    .filter(|&j| site(mask[j]))
-                    .map(|j| {
-                        let ((a, b), (c, d)) = (xy(i), xy(j));
-                        (a - c).powi(2) + (b - d).powi(2)
-                    })
-                    .fold(f32::INFINITY, f32::min)
-            })
-            .collect()
-    }
-
-    #[test]
-    fn the_distance_transform_is_exact() {
-        let (width, height) = (23, 17);
-        let mut rng = SplitMix64::new(3);
-        for density in [0.0, 0.02, 0.3, 0.9] {
-            let mask: Vec<u8> = (0..width * height)
-                .map(|_| u8::from(rng.range(0.0, 1.0) < density))
-                .collect();
-            let fast = squared_distances(&mask, width, height, |m| m > 0);
-            assert_eq!(
-                fast,
-                brute_force(&mask, width, |m| m > 0),
-                "density {density}"
-            );
-        }
-    }
 
     #[test]
     fn a_disc_grows_and_shrinks_only_near_its_edge() {

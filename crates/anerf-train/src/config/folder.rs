@@ -34,6 +34,11 @@ struct FolderTrain {
 /// (docs/POSE-REFINEMENT.md, "Several frames a step").
 pub const REFINED_FRAMES_PER_STEP: usize = 4;
 
+/// `model.pose_refinement.silhouette_weight` where a folder's fits are refined: the posed body's outline
+/// held to the masks' edges places the body where the photometric loss alone leaves it 0.5–0.8 cm off
+/// (docs/POSE-REFINEMENT.md, "The body's silhouette").
+pub const REFINED_SILHOUETTE_WEIGHT: f32 = 0.01;
+
 #[derive(Serialize)]
 struct FolderDataset {
     format: DatasetFormat,
@@ -55,10 +60,13 @@ struct FolderModel {
     pose_refinement: FolderRefinement,
 }
 
-/// `[model.pose_refinement]` of a folder: on unless its body fits are known to be exact.
+/// `[model.pose_refinement]` of a folder: on unless its body fits are known to be exact, and then with
+/// the body silhouette term at [`REFINED_SILHOUETTE_WEIGHT`].
 #[derive(Serialize)]
 struct FolderRefinement {
     enabled: bool,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    silhouette_weight: Option<f32>,
 }
 
 /// Whether a folder's body fits are known to be exact: a subject `anerf synth` wrote (it leaves
@@ -138,7 +146,10 @@ pub fn folder_table(data: &Path, load: &LoadOptions) -> Result<Table> {
         },
         model: FolderModel {
             preset: "cpu",
-            pose_refinement: FolderRefinement { enabled: refine },
+            pose_refinement: FolderRefinement {
+                enabled: refine,
+                silhouette_weight: refine.then_some(REFINED_SILHOUETTE_WEIGHT),
+            },
         },
         train: refine.then_some(FolderTrain {
             frames_per_step: REFINED_FRAMES_PER_STEP,

@@ -22,7 +22,7 @@ mod tests;
 mod validate;
 
 pub use defaults::{LearningRates, DEFAULT_PRESET};
-pub use folder::{folder_table, REFINED_FRAMES_PER_STEP};
+pub use folder::{folder_table, REFINED_FRAMES_PER_STEP, REFINED_SILHOUETTE_WEIGHT};
 pub use frames::FrameRange;
 pub use presets::{preset_help, preset_schedule, preset_short_help, PresetSchedule};
 pub use sources::{

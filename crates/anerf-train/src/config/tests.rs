@@ -189,6 +189,19 @@ fn errors_name_the_key_and_the_allowed_values() {
             "{share}: {err}"
         );
     }
+    for weight in ["-0.1", "inf", "nan", "1e7"] {
+        let err = load(
+            &p,
+            &[format!("model.pose_refinement.silhouette_weight={weight}")],
+        )
+        .unwrap_err()
+        .to_string();
+        assert!(
+            err.contains("model.pose_refinement.silhouette_weight")
+                && err.contains("0 or a positive number up to"),
+            "{weight}: {err}"
+        );
+    }
     let err = load(&p, &["train.views_per_step=0".into()])
         .unwrap_err()
         .to_string();

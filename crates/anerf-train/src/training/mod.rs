@@ -5,6 +5,7 @@
 //! files (`stage2`). Stage 1's loss is `objective`'s; a stage-1 fit on several devices runs data-parallel
 //! (`parallel`).
 
+pub mod body_silhouette;
 pub mod checkpoint;
 mod driver;
 mod loop_state;

@@ -1,13 +1,15 @@
 //! Stage 1: the canonical radiance field and the training frames' blend-weight fields, fitted to rays of
 //! the training views.
 
+use std::collections::HashMap;
 use std::sync::atomic::AtomicBool;
 use std::sync::Arc;
 
 use anerf_core::model::{AnimatableNerf, FrameCode, FrameInputs, FrameRays};
 use anerf_core::render::{psnr_from_mse, HostRays, RayBatch};
 use anerf_core::tensor::{from_rows, to_host};
-use anerf_core::FrameId;
+use anerf_core::{FrameId, ViewId};
+use anerf_data::mask_distance::MaskDistance;
 use anerf_data::{Backgrounds, MaskEdges, Prefetch, RaySampler, SamplerOptions, StepPlan};
 use anerf_eval::images::{write_png, PngDepth};
 use anerf_eval::ImageMetrics;
@@ -15,7 +17,11 @@ use anyhow::{bail, Context, Result};
 use burn::prelude::*;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
+use rayon::prelude::*;
 
+use super::body_silhouette::{
+    silhouette_evidence, silhouette_loss, SilhouetteEvidence, SilhouetteView, MASK_MARGIN,
+};
 use super::checkpoint::TrainerState;
 use super::driver::{drive, Record, RenderFigures, Single, Step};
 use super::loop_state::LoopState;
@@ -163,6 +169,8 @@ struct StepFrame {
     /// `[R·S]` uniform numbers in `[0, 1)`, `S` per ray.
     jitter: Vec<f32>,
     inputs: Vec<FrameInputs>,
+    /// The step's views of the frame with their masks' distances, where the body silhouette term is on.
+    silhouette: Vec<SilhouetteView>,
 }
 
 impl RayStep {
@@ -180,6 +188,8 @@ struct Stage1<'a> {
     record: Record<'a>,
     /// Draws each step's rays while the step before computes.
     prefetch: Prefetch,
+    /// The training masks' signed distances, computed once each, where the body silhouette term is on.
+    masks: HashMap<(FrameId, ViewId), Arc<MaskDistance>>,
 }
 
 impl<'a> Stage1<'a> {
@@ -227,7 +237,40 @@ impl<'a> Stage1<'a> {
             cfg,
             state,
             record,
+            masks: HashMap::new(),
         })
+    }
+
+    /// Frame `frame`'s views `views` with their masks' signed distances (computed on first use; a view
+    /// whose mask is empty has no outline to match and is left out).
+    fn silhouette_views(
+        &mut self,
+        frame: FrameId,
+        views: &[ViewId],
+    ) -> Result<Vec<SilhouetteView>> {
+        let mut out = Vec::new();
+        for &view in views {
+            if !self.masks.contains_key(&(frame, view)) {
+                let mask = self
+                    .exp
+                    .prepared
+                    .mask(frame, view)
+                    .with_context(|| format!("the mask of {frame}, {view}"))?;
+                let (w, h) = mask.dimensions();
+                if let Some(distance) =
+                    MaskDistance::new(mask.as_raw(), w as usize, h as usize, MASK_MARGIN)
+                {
+                    self.masks.insert((frame, view), Arc::new(distance));
+                }
+            }
+            if let Some(mask) = self.masks.get(&(frame, view)) {
+                out.push(SilhouetteView {
+                    camera: self.exp.prepared.cameras[view.0].clone(),
+                    mask: Arc::clone(mask),
+                });
+            }
+        }
+        Ok(out)
     }
 }
 
@@ -327,7 +370,6 @@ impl ShardedStep for Stage1<'_> {
     type Batch = RayStep;
 
     fn batch(&mut self, replicas: usize) -> Result<RayStep> {
-        let exp = &mut *self.exp;
         let sampler = self
             .state
             .sampler
@@ -336,17 +378,27 @@ impl ShardedStep for Stage1<'_> {
         let drawn = self.prefetch.next(sampler)?;
         *sampler = drawn.sampler;
         let (images, rays) = (drawn.images, drawn.rays);
-        let samples = exp.config.model.samples_per_ray;
+        let samples = self.exp.config.model.samples_per_ray;
         // Before the refinement's start the frames render with their given fits (and their corrections
         // get no gradient and no penalty).
-        let refinement = &exp.config.model.pose_refinement;
+        let refinement = self.exp.config.model.pose_refinement;
         let refining =
             self.state.counters.step as f32 >= refinement.start * self.cfg.iterations as f32;
+        let silhouettes = if refining && refinement.enabled && refinement.silhouette_weight > 0.0 {
+            images
+                .iter()
+                .map(|image| self.silhouette_views(image.frame, &image.views))
+                .collect::<Result<Vec<_>>>()?
+        } else {
+            vec![Vec::new(); images.len()]
+        };
+        let exp = &mut *self.exp;
         let rng = &mut self.state.rng;
         let frames = images
             .iter()
             .zip(rays)
-            .map(|(image, rays)| {
+            .zip(silhouettes)
+            .map(|((image, rays), silhouette)| {
                 let jitter = (0..rays.len() * samples)
                     .map(|_| rng.random::<f32>())
                     .collect();
@@ -368,6 +420,7 @@ impl ShardedStep for Stage1<'_> {
                     rays,
                     jitter,
                     inputs,
+                    silhouette,
                 })
             })
             .collect::<Result<_>>()?;
@@ -392,7 +445,7 @@ impl ShardedStep for Stage1<'_> {
         for (frame, (terms, out)) in batch
             .frames
             .iter()
-            .zip(self.frames_terms(batch, shard, model, device))
+            .zip(self.frames_terms(batch, shard, model, device)?)
         {
             let share = frame.rays.len() as f32 / total;
             surviving += out.surviving_samples;
@@ -436,15 +489,15 @@ const POSE_CHECK_EVERY: usize = 100;
 
 impl Stage1<'_> {
     /// Each frame's rays of this shard rendered (one render of all the step's frames), and the
-    /// [`Objective`]'s terms of each frame's rays plus the frame's pose regulariser, as a one-frame step
-    /// weighs them.
+    /// [`Objective`]'s terms of each frame's rays plus the frame's pose regulariser and body silhouette
+    /// term, as a one-frame step weighs them.
     fn frames_terms(
         &self,
         batch: &RayStep,
         shard: &Shard<'_>,
         model: &AnimatableNerf,
         device: &Device,
-    ) -> Vec<(WeighedTerms, RenderCounts)> {
+    ) -> Result<Vec<(WeighedTerms, RenderCounts)>> {
         let cfg = self.cfg;
         let model_cfg = model.config();
         let samples = model_cfg.samples_per_ray;
@@ -466,17 +519,23 @@ impl Stage1<'_> {
                 )
             })
             .unzip();
-        let parts = batch
+        // Each frame with its bones corrected once, for its render and its silhouette term.
+        let posed: Vec<FrameInputs> = batch
             .frames
+            .iter()
+            .map(|frame| model.posed_frame(&frame.inputs[shard.index]))
+            .collect();
+        let parts = posed
             .iter()
             .zip(&rays)
             .zip(jitter)
             .map(|((frame, rays), jitter)| FrameRays {
                 rays,
-                frame: &frame.inputs[shard.index],
+                frame,
                 jitter: Some(jitter),
             })
             .collect();
+        let evidence = self.silhouette_evidences(model, batch, shard)?;
         let outs = model.render_frames(
             parts,
             self.exp.canonical_on(shard.index),
@@ -485,12 +544,17 @@ impl Stage1<'_> {
         outs.into_iter()
             .zip(&rays)
             .zip(&batch.frames)
-            .map(|((out, rays), frame)| {
+            .zip(posed.iter().zip(evidence))
+            .map(|(((out, rays), frame), (posed, evidence))| {
                 let sums = TermSums::new(&out, rays, cfg, model_cfg.consistency);
                 let totals = sums.totals(shard, device);
                 let mut terms = Objective { cfg }.weigh(sums, totals, shard.count);
-                if let Some(penalty) = self.pose_penalty(model, &frame.inputs[shard.index]) {
+                let inputs = &frame.inputs[shard.index];
+                if let Some(penalty) = self.pose_penalty(model, inputs) {
                     terms.loss = terms.loss + penalty;
+                }
+                if let Some(evidence) = evidence {
+                    terms.loss = terms.loss + silhouette_loss(&evidence, posed.bones.rows());
                 }
                 let counts = RenderCounts {
                     rays: rays.len(),
@@ -498,7 +562,67 @@ impl Stage1<'_> {
                     occupied_samples: out.occupied_samples,
                     total_samples: out.total_samples,
                 };
-                (terms, counts)
+                Ok((terms, counts))
+            })
+            .collect()
+    }
+
+    /// The body silhouette term of each of the batch's frames (the same on every shard, as the
+    /// regulariser), from its refined pose now, computed on the host for all frames at once; `None` for a
+    /// frame where the term is off, before the refinement's start, or where no view of it has a mask.
+    fn silhouette_evidences(
+        &self,
+        model: &AnimatableNerf,
+        batch: &RayStep,
+        shard: &Shard<'_>,
+    ) -> Result<Vec<Option<SilhouetteEvidence>>> {
+        let prepared = &self.exp.prepared;
+        let convention = self
+            .state
+            .sampler
+            .as_ref()
+            .expect("stage 1 keeps a sampler")
+            .options
+            .convention;
+        let weight = model.config().pose_refinement.silhouette_weight;
+        // The refined poses are read on this thread; posing and projecting the body runs per frame in
+        // parallel.
+        let work = batch
+            .frames
+            .iter()
+            .map(|frame| {
+                let inputs = &frame.inputs[shard.index];
+                let (Some(pose), Some(_), FrameCode::Training(f), false) = (
+                    model.pose.as_ref(),
+                    &inputs.basis,
+                    inputs.code,
+                    frame.silhouette.is_empty(),
+                ) else {
+                    return Ok(None);
+                };
+                let given = &prepared
+                    .frame(frame.frame)
+                    .with_context(|| format!("{} was not prepared", frame.frame))?
+                    .pose;
+                Ok(Some((frame, pose.correction(f).apply(given), given)))
+            })
+            .collect::<Result<Vec<_>>>()?;
+        work.into_par_iter()
+            .map(|job| {
+                let Some((frame, refined, given)) = job else {
+                    return Ok(None);
+                };
+                silhouette_evidence(
+                    &prepared.canonical,
+                    &prepared.skeleton,
+                    &refined,
+                    &given.global,
+                    &frame.silhouette,
+                    convention,
+                    weight,
+                )
+                .map(Some)
+                .with_context(|| format!("the body silhouette term of {}", frame.frame))
             })
             .collect()
     }
