@@ -55,8 +55,6 @@ pub struct SilhouetteEvidence {
     /// gradient with respect to posed vertex `v` in the given fit's pose space and `y_v` its canonical
     /// (T-pose) position, metres.
     pub moments: Vec<f32>,
-    /// Outline vertices over all views.
-    pub outline: usize,
 }
 
 /// The term for a frame whose current (refined) pose is `pose`, with pose space that of the given fit's
@@ -89,7 +87,6 @@ pub fn silhouette_evidence(
     // The value's gradient with respect to each world-space vertex.
     let mut gradient = vec![Vec3::ZERO; world.len()];
     let mut value = 0.0;
-    let mut outline = 0;
     let owners: Vec<usize> = weights
         .chunks_exact(k)
         .map(|w| {
@@ -110,12 +107,10 @@ pub fn silhouette_evidence(
             value += scale * (root - 1.0);
             gradient[hit.vertex] += hit.direction * (scale * r / root);
         }
-        outline += found.len();
     }
     Ok(SilhouetteEvidence {
         value,
         moments: bone_moments(body, given, &gradient),
-        outline,
     })
 }
 
@@ -345,7 +340,6 @@ mod tests {
             &SilhouetteEvidence {
                 value: 0.0,
                 moments,
-                outline: 0,
             },
             bones,
         );
