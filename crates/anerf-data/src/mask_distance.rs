@@ -21,7 +21,7 @@ pub fn edge_distances(mask: &[u8], width: usize, height: usize) -> Vec<f32> {
 
 /// Exact squared Euclidean distance (pixels²) from each pixel to the nearest pixel whose value is a
 /// `site` (infinite without any): Felzenszwalb and Huttenlocher's transform, rows then columns.
-pub fn squared_distances(
+fn squared_distances(
     mask: &[u8],
     width: usize,
     height: usize,
@@ -163,11 +163,6 @@ impl MaskDistance {
         let value = top + (bottom - top) * f.y;
         let gradient = Vec2::new((b - a) + ((d - c) - (b - a)) * f.y, bottom - top);
         Some((value, gradient))
-    }
-
-    /// Bytes held.
-    pub fn bytes(&self) -> usize {
-        self.values.len() * std::mem::size_of::<f32>()
     }
 }
 

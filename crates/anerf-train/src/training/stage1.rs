@@ -592,7 +592,7 @@ impl Stage1<'_> {
             .iter()
             .map(|frame| {
                 let inputs = &frame.inputs[shard.index];
-                let (Some(pose), Some(_), FrameCode::Training(f), false) = (
+                let (Some(_), Some(_), FrameCode::Training(_), false) = (
                     model.pose.as_ref(),
                     &inputs.basis,
                     inputs.code,
@@ -604,7 +604,11 @@ impl Stage1<'_> {
                     .frame(frame.frame)
                     .with_context(|| format!("{} was not prepared", frame.frame))?
                     .pose;
-                Ok(Some((frame, pose.correction(f).apply(given), given)))
+                Ok(Some((
+                    frame,
+                    self.exp.frame_pose(model, frame.frame)?,
+                    given,
+                )))
             })
             .collect::<Result<Vec<_>>>()?;
         work.into_par_iter()
