@@ -5,6 +5,7 @@
 //! refinement's body silhouette term).
 
 use anerf_core::geometry::{Camera, PixelConvention};
+use anerf_core::mesh::TriMesh;
 use glam::{Vec2, Vec3};
 
 /// Vertices nearer the camera than this (metres, along its axis) drop their triangle (no clipping).
@@ -42,18 +43,54 @@ pub fn rasterize_mesh(
     out
 }
 
+/// Whether a mesh encloses a volume. Every line of sight from a camera outside a closed, consistently
+/// oriented mesh that meets it crosses a face turned toward the camera, so the faces turned away add
+/// nothing to its coverage.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Surface {
+    /// Closed, two-manifold and consistently oriented
+    /// ([`anerf_core::mesh::EdgeReport::is_watertight`]).
+    Closed,
+    /// Anything else: every face may cover a pixel the others do not.
+    Open,
+}
+
+impl Surface {
+    /// The kind of `mesh`'s surface, from its edges (a hash of every edge: compute it once per mesh).
+    pub fn of(mesh: &TriMesh) -> Self {
+        if mesh.edge_report().is_watertight() {
+            Self::Closed
+        } else {
+            Self::Open
+        }
+    }
+}
+
 /// The pixels (`[H·W]` row-major) whose sample point a triangle of the mesh covers, as
-/// [`rasterize_mesh`] draws them, without colours or depths: the mesh's silhouette.
+/// [`rasterize_mesh`] draws them, without colours or depths: the mesh's silhouette. A [`Surface::Closed`]
+/// mesh walks only its faces turned toward the camera (half the work; the camera must be outside it).
 pub fn mesh_coverage(
     vertices: &[Vec3],
     faces: &[[u32; 3]],
+    surface: Surface,
     camera: &Camera,
     convention: PixelConvention,
 ) -> Vec<bool> {
     let (w, h) = (camera.width as usize, camera.height as usize);
     let mut covered = vec![false; w * h];
     let projected = project(vertices, camera, convention);
-    walk_faces(&projected, faces, w, h, |_, i, _, _| covered[i] = true);
+    let visit = |_, i, _, _| covered[i] = true;
+    match surface {
+        Surface::Open => walk_faces(&projected, faces, w, h, visit),
+        Surface::Closed => {
+            let eye = camera.center();
+            let toward = faces.iter().filter(|face| {
+                let [a, b, c] = face.map(|v| vertices[v as usize]);
+                (b - a).cross(c - a).dot(eye - a) > 0.0
+            });
+            walk_faces(&projected, toward, w, h, visit)
+        }
+    }
     covered
 }
 
@@ -77,9 +114,9 @@ fn project(
 /// Calls `visit(face, pixel index, edge values, twice the signed area)` for every pixel of a `w × h` image
 /// whose sample point a face covers (either winding; faces with a corner behind the near plane are
 /// skipped). The edge values over the area are the pixel's screen-space barycentrics.
-fn walk_faces(
+fn walk_faces<'f>(
     projected: &[Option<(Vec2, f32)>],
-    faces: &[[u32; 3]],
+    faces: impl IntoIterator<Item = &'f [u32; 3]>,
     w: usize,
     h: usize,
     mut visit: impl FnMut([u32; 3], usize, [f32; 3], f32),
@@ -197,12 +234,96 @@ mod tests {
         let faces = vec![[0, 1, 2], [0, 3, 2], [1, 3, 0], [0, 1, 4]];
         let colours = vec![[0.5, 0.5, 0.5]; vertices.len()];
         let drawn = rasterize_mesh(&vertices, &faces, &colours, &cam, PixelConvention::Center);
-        let covered = mesh_coverage(&vertices, &faces, &cam, PixelConvention::Center);
+        let covered = mesh_coverage(
+            &vertices,
+            &faces,
+            Surface::Open,
+            &cam,
+            PixelConvention::Center,
+        );
         assert_eq!(
             covered,
             drawn.iter().map(|p| p[3] > 0.0).collect::<Vec<_>>()
         );
         assert!(covered.iter().filter(|&&c| c).count() > 50);
+    }
+
+    /// A torus about the z axis (radii 0.5 and 0.2 m) turned `tilt` radians about x and centred at
+    /// `centre`, `n × m` quads split in two, wound consistently.
+    fn torus(centre: Vec3, tilt: f32, n: u32, m: u32) -> TriMesh {
+        let turn = glam::Quat::from_rotation_x(tilt);
+        let mut vertices = Vec::new();
+        for i in 0..n {
+            for j in 0..m {
+                let (t, p) = (
+                    std::f32::consts::TAU * i as f32 / n as f32,
+                    std::f32::consts::TAU * j as f32 / m as f32,
+                );
+                let ring = 0.5 + 0.2 * p.cos();
+                vertices
+                    .push(centre + turn * Vec3::new(ring * t.cos(), ring * t.sin(), 0.2 * p.sin()));
+            }
+        }
+        let at = |i: u32, j: u32| (i % n) * m + j % m;
+        let faces = (0..n)
+            .flat_map(|i| (0..m).map(move |j| (i, j)))
+            .flat_map(|(i, j)| {
+                [
+                    [at(i, j), at(i + 1, j), at(i + 1, j + 1)],
+                    [at(i, j), at(i + 1, j + 1), at(i, j + 1)],
+                ]
+            })
+            .collect();
+        TriMesh { vertices, faces }
+    }
+
+    /// A closed mesh's coverage from its faces turned toward the camera equals that of all its faces, with
+    /// lines of sight crossing it up to four times (a tilted torus, its hole in view) and with its faces
+    /// wound either way; a mesh with a hole is not closed.
+    #[test]
+    fn a_closed_mesh_is_covered_by_its_faces_toward_the_camera() {
+        // A camera away from the origin, turned, so that the faces' side is judged from its own centre.
+        let turn = Mat3::from_rotation_y(0.3);
+        let t = Vec3::new(0.6, 0.1, 0.4);
+        let cam = Camera::from_rows(
+            [[90.0, 0.0, 32.0], [0.0, 90.0, 32.0], [0.0, 0.0, 1.0]],
+            turn.transpose().to_cols_array_2d(),
+            t.to_array(),
+            [0.0; 5],
+            64,
+            64,
+        )
+        .unwrap();
+        let centre = turn.transpose() * (Vec3::new(0.05, -0.1, 2.5) - t);
+        assert!((cam.world_to_camera(centre) - Vec3::new(0.05, -0.1, 2.5)).length() < 1e-5);
+        for tilt in [0.3f32, 1.0, 1.4] {
+            let mut mesh = torus(centre, tilt, 24, 12);
+            assert_eq!(Surface::of(&mesh), Surface::Closed);
+            for _ in 0..2 {
+                let all = mesh_coverage(
+                    &mesh.vertices,
+                    &mesh.faces,
+                    Surface::Open,
+                    &cam,
+                    PixelConvention::Center,
+                );
+                let culled = mesh_coverage(
+                    &mesh.vertices,
+                    &mesh.faces,
+                    Surface::Closed,
+                    &cam,
+                    PixelConvention::Center,
+                );
+                assert_eq!(culled, all, "tilt {tilt}");
+                let count = all.iter().filter(|&&c| c).count();
+                assert!(count > 600, "tilt {tilt}: {count} pixels covered");
+                for face in &mut mesh.faces {
+                    face.swap(1, 2);
+                }
+            }
+            mesh.faces.pop();
+            assert_eq!(Surface::of(&mesh), Surface::Open);
+        }
     }
 
     /// Colour along a slanted triangle follows the surface (perspective-correct), not the screen: a linear

@@ -24,7 +24,7 @@ use anerf_core::geometry::{
 use anerf_core::mesh::TriMesh;
 use anerf_data::mask_distance::MaskDistance;
 use anerf_data::prepare::CanonicalBody;
-use anerf_eval::mesh_raster::mesh_coverage;
+use anerf_eval::mesh_raster::{mesh_coverage, Surface};
 use anyhow::{Context, Result};
 use burn::prelude::*;
 use glam::{Vec2, Vec3};
@@ -57,11 +57,45 @@ pub struct SilhouetteEvidence {
     pub moments: Vec<f32>,
 }
 
+/// The body model as the term reads it, derived once per run: each vertex's bone of largest weight (its
+/// outline's group for the median) and whether the mesh is closed (its coverage then walks half the faces).
+#[derive(Debug, Clone)]
+pub struct SilhouetteBody {
+    pub body: CanonicalBody,
+    owners: Vec<usize>,
+    surface: Surface,
+}
+
+impl SilhouetteBody {
+    pub fn new(body: CanonicalBody) -> Self {
+        let k = body.weights.num_joints();
+        let owners = body
+            .weights
+            .as_slice()
+            .chunks_exact(k)
+            .map(|w| {
+                (0..k)
+                    .max_by(|&a, &b| w[a].total_cmp(&w[b]))
+                    .expect("a joint")
+            })
+            .collect();
+        let surface = Surface::of(&TriMesh {
+            vertices: body.vertices.clone(),
+            faces: body.faces.clone(),
+        });
+        Self {
+            body,
+            owners,
+            surface,
+        }
+    }
+}
+
 /// The term for a frame whose current (refined) pose is `pose`, with pose space that of the given fit's
 /// global motion `given` (the corrected bones' space, [`anerf_core::geometry::PoseBasis`]), seen in
 /// `views`; pixels sampled where `convention` puts them.
 pub fn silhouette_evidence(
-    body: &CanonicalBody,
+    model: &SilhouetteBody,
     skeleton: &Skeleton,
     pose: &Pose,
     given: &GlobalTransform,
@@ -69,38 +103,30 @@ pub fn silhouette_evidence(
     convention: PixelConvention,
     weight: f32,
 ) -> Result<SilhouetteEvidence> {
+    let body = &model.body;
     let k = skeleton.num_joints();
     let bones = skeleton
         .bone_transforms(pose, CanonicalPose::TPose)
         .context("the refined pose's bones")?;
-    let weights = body.weights.as_slice();
-    let world: Vec<Vec3> = forward_lbs_points(&body.vertices, weights, &bones)
+    let world: Vec<Vec3> = forward_lbs_points(&body.vertices, body.weights.as_slice(), &bones)
         .context("posing the body model")?
         .into_iter()
         .map(|x| pose.global.pose_to_world(x))
         .collect();
-    let normals = TriMesh {
-        vertices: world.clone(),
+    let posed = TriMesh {
+        vertices: world,
         faces: body.faces.clone(),
-    }
-    .vertex_normals();
+    };
+    let normals = posed.vertex_normals();
     // The value's gradient with respect to each world-space vertex.
-    let mut gradient = vec![Vec3::ZERO; world.len()];
+    let mut gradient = vec![Vec3::ZERO; posed.vertices.len()];
     let mut value = 0.0;
-    let owners: Vec<usize> = weights
-        .chunks_exact(k)
-        .map(|w| {
-            (0..k)
-                .max_by(|&a, &b| w[a].total_cmp(&w[b]))
-                .expect("a joint")
-        })
-        .collect();
     for view in views {
-        let found = outline_residuals(&world, &normals, &body.faces, view, convention);
+        let found = outline_residuals(&posed, model.surface, &normals, view, convention);
         if found.is_empty() {
             continue;
         }
-        let centred = centre_by_bone(&found, &owners, k);
+        let centred = centre_by_bone(&found, &model.owners, k);
         let scale = weight / (views.len() * found.len()) as f32;
         for (hit, r) in found.iter().zip(centred) {
             let root = (1.0 + r * r).sqrt();
@@ -162,18 +188,18 @@ struct OutlineHit {
     direction: Vec3,
 }
 
-/// The outline vertices of the posed body (`world`, `normals`) in `view` that project where the mask's
-/// distance is known.
+/// The outline vertices of the posed body (`posed` in world space, its `surface`, `normals`) in `view`
+/// that project where the mask's distance is known.
 fn outline_residuals(
-    world: &[Vec3],
+    posed: &TriMesh,
+    surface: Surface,
     normals: &[Vec3],
-    faces: &[[u32; 3]],
     view: &SilhouetteView,
     convention: PixelConvention,
 ) -> Vec<OutlineHit> {
     let camera = &view.camera;
     let (w, h) = (camera.width as i64, camera.height as i64);
-    let covered = mesh_coverage(world, faces, camera, convention);
+    let covered = mesh_coverage(&posed.vertices, &posed.faces, surface, camera, convention);
     let empty_near = |p: Vec2| {
         let (u, v) = (p.x.round() as i64, p.y.round() as i64);
         (-OUTLINE_RADIUS..=OUTLINE_RADIUS).any(|dv| {
@@ -185,7 +211,8 @@ fn outline_residuals(
     };
     let k = camera.intrinsics;
     let (row0, row1, row2) = (k.row(0), k.row(1), k.row(2));
-    world
+    posed
+        .vertices
         .iter()
         .zip(normals)
         .enumerate()
@@ -438,12 +465,19 @@ mod tests {
                 / world.len() as f32
         };
         let start = error_of(&given);
+        let model = SilhouetteBody::new(body.clone());
+        assert_eq!(model.surface, Surface::Closed);
         for (dilation, most) in [(0, 1.0 / 3.0), (2, 0.5)] {
             let views: Vec<SilhouetteView> = cameras
                 .iter()
                 .map(|camera| {
-                    let covered =
-                        mesh_coverage(&world, &body.faces, camera, PixelConvention::Integer);
+                    let covered = mesh_coverage(
+                        &world,
+                        &body.faces,
+                        Surface::Open,
+                        camera,
+                        PixelConvention::Integer,
+                    );
                     let (w, h) = (camera.width as usize, camera.height as usize);
                     let mask: Vec<u8> = (0..w * h)
                         .map(|i| {
@@ -473,7 +507,7 @@ mod tests {
             for _ in 0..150 {
                 let pose = correction(&values, k).apply(&given);
                 let evidence = silhouette_evidence(
-                    &body,
+                    &model,
                     &skeleton,
                     &pose,
                     &given.global,

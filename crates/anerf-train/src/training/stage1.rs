@@ -3,7 +3,7 @@
 
 use std::collections::HashMap;
 use std::sync::atomic::AtomicBool;
-use std::sync::Arc;
+use std::sync::{Arc, OnceLock};
 
 use anerf_core::model::{AnimatableNerf, FrameCode, FrameInputs, FrameRays};
 use anerf_core::render::{psnr_from_mse, HostRays, RayBatch};
@@ -20,7 +20,8 @@ use rand_chacha::ChaCha8Rng;
 use rayon::prelude::*;
 
 use super::body_silhouette::{
-    silhouette_evidence, silhouette_loss, SilhouetteEvidence, SilhouetteView, MASK_MARGIN,
+    silhouette_evidence, silhouette_loss, SilhouetteBody, SilhouetteEvidence, SilhouetteView,
+    MASK_MARGIN,
 };
 use super::checkpoint::TrainerState;
 use super::driver::{drive, Record, RenderFigures, Single, Step};
@@ -190,6 +191,8 @@ struct Stage1<'a> {
     prefetch: Prefetch,
     /// The training masks' signed distances, computed once each, where the body silhouette term is on.
     masks: HashMap<(FrameId, ViewId), Arc<MaskDistance>>,
+    /// The body model as the silhouette term reads it, derived on first use.
+    silhouette_body: OnceLock<SilhouetteBody>,
 }
 
 impl<'a> Stage1<'a> {
@@ -238,6 +241,7 @@ impl<'a> Stage1<'a> {
             state,
             record,
             masks: HashMap::new(),
+            silhouette_body: OnceLock::new(),
         })
     }
 
@@ -585,6 +589,9 @@ impl Stage1<'_> {
             .options
             .convention;
         let weight = model.config().pose_refinement.silhouette_weight;
+        let body = self
+            .silhouette_body
+            .get_or_init(|| SilhouetteBody::new(prepared.canonical.clone()));
         // The refined poses are read on this thread; posing and projecting the body runs per frame in
         // parallel.
         let work = batch
@@ -617,7 +624,7 @@ impl Stage1<'_> {
                     return Ok(None);
                 };
                 silhouette_evidence(
-                    &prepared.canonical,
+                    body,
                     &prepared.skeleton,
                     &refined,
                     &given.global,
