@@ -48,9 +48,10 @@ pub enum MaskEdges {
     /// training frames ([`Backgrounds`]): where the background is known, every ray's target is the image
     /// itself and the render is composited over the background ([`HostRays::backgrounds`]), and a band ray
     /// carries no mask label ([`HostRays::labelled`]), so the colours decide where the body ends, as a
-    /// partly covered pixel's colour says how much of it the body covers. Band pixels whose background is
-    /// not known are not drawn; without any backgrounds, as `Robust`. The default: captures' cameras
-    /// stand still, and their masks are of unknown quality.
+    /// partly covered pixel's colour says how much of it the body covers; except a band pixel outside the
+    /// mask whose colour is its background's, which keeps its label 0 ([`shows_background`]). Band
+    /// pixels whose background is not known are not drawn; without any backgrounds, as `Robust`. The
+    /// default: captures' cameras stand still, and their masks are of unknown quality.
     #[default]
     Backdrop,
 }
@@ -316,7 +317,9 @@ impl RaySampler {
                         (None, _) => out.edge.push(band[i]),
                         (Some(_), known) => {
                             out.edge.push(band[i] && known.is_none());
-                            out.labelled.push(!band[i] || known.is_none());
+                            let clear = on_body[i] == 0
+                                && known.is_some_and(|b| shows_background(color, b));
+                            out.labelled.push(!band[i] || known.is_none() || clear);
                             out.backgrounds.push(known.unwrap_or([0.0; 3]));
                         }
                     }
@@ -511,6 +514,24 @@ fn target(view: &ImageView, background: Option<&BackgroundPlate>, i: usize) -> [
     } else {
         [0.0; 3]
     }
+}
+
+/// Mean absolute difference per channel (0–1 colour, about 8 of 255 grey levels) under which a pixel's
+/// colour counts as its camera's estimated background: above a capture's sensor noise, below what a body
+/// covering a tenth of the pixel adds against a background that differs from it by a third.
+const BACKGROUND_TOLERANCE: f32 = 0.03;
+
+/// Whether a pixel of colour `seen` shows its `background` alone ([`BACKGROUND_TOLERANCE`]). Under
+/// `backdrop` a band pixel outside the mask that does keeps its label 0: two independent witnesses, the
+/// mask and the colour, agree that no body covers it, so the silhouette loss may empty it; a pixel the
+/// mask missed shows the body's colour and stays unlabelled.
+fn shows_background(seen: [f32; 3], background: [f32; 3]) -> bool {
+    let diff: f32 = seen
+        .iter()
+        .zip(background)
+        .map(|(a, b)| (a - b).abs())
+        .sum();
+    diff < 3.0 * BACKGROUND_TOLERANCE
 }
 
 /// A training image of a prepared subject, read and with its [`Pools`] found.
