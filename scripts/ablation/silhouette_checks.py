@@ -1,5 +1,6 @@
 #!/usr/bin/env python3
-"""Two numpy checks behind docs/QUALITY.md's "The band filled in" (issue 35), on subjects `anerf synth` wrote.
+"""Numpy checks behind docs/QUALITY.md's sections on the mask-edge band (issue 35), on subjects `anerf synth`
+wrote.
 
   silhouette_checks.py fill <subject> [--masks <subject>] [--camera Camera_B1] [--frames 60]
       How much of the mask-edge band has a known background under `train.mask_edges = "backdrop"` (the
@@ -13,8 +14,16 @@
       The synthetic masks mark every pixel whose square touches the body (conservative coverage), so their
       pixel count exceeds the silhouette's continuous area by about half a pixel per boundary pixel: the
       area ratio a perfectly soft render would score is about 1 - boundary / (2 area).
+
+  silhouette_checks.py rings <subject> <run> [--split novel-view]
+      Where the band's error lies in a run's evaluated images (`anerf eval` writes them): the PSNR of each
+      ring of pixels at 1 and 2 px inside and outside the subject's true silhouette (the band `eval`
+      reports is their union), their mean signed error (prediction - truth) and share of the band's
+      squared error.
 """
 import argparse
+import os
+import re
 import warnings
 
 import numpy as np
@@ -100,6 +109,33 @@ def boundary(args):
     print(f"boundary / area {b / a:.4f}: a perfectly soft render's area ratio is about {1 - b / a / 2:.3f}")
 
 
+def rings(args):
+    cameras = sorted(d for d in os.listdir(f"{args.subject}/mask_cihp"))
+    names = ("inside, 1 px", "inside, 2 px", "outside, 1 px", "outside, 2 px")
+    totals = {name: np.zeros(3) for name in names}  # squared error, signed error, pixels
+    pattern = re.compile(r"frame(\d+)_view(\d+)_gt\.png$")
+    folder = f"{args.run}/eval/{args.split}/images"
+    for name in sorted(os.listdir(folder)):
+        found = pattern.search(name)
+        if not found:
+            continue
+        frame, view = map(int, found.groups())
+        truth = np.asarray(Image.open(f"{folder}/{name}"), np.float64)[..., :3] / 255
+        drawn = np.asarray(Image.open(f"{folder}/{name[:-len('gt.png')]}pred.png"), np.float64)[..., :3] / 255
+        mask = np.asarray(Image.open(f"{args.subject}/mask_cihp/{cameras[view]}/{frame:06d}.png")) > 0
+        inner1 = mask & ~ndi.binary_erosion(mask, square(1))
+        inner2 = mask & ~ndi.binary_erosion(mask, square(2)) & ~inner1
+        outer1 = ndi.binary_dilation(mask, square(1)) & ~mask
+        outer2 = ndi.binary_dilation(mask, square(2)) & ~mask & ~outer1
+        squared, signed = ((drawn - truth) ** 2).mean(-1), (drawn - truth).mean(-1)
+        for ring, pixels in zip(names, (inner1, inner2, outer1, outer2)):
+            totals[ring] += (squared[pixels].sum(), signed[pixels].sum(), pixels.sum())
+    band = sum(t[0] for t in totals.values())
+    for ring, (squared, signed, count) in totals.items():
+        print(f"{ring}: {int(count)} pixels, PSNR {-10 * np.log10(squared / count):.2f} dB, "
+              f"mean error {signed / count:+.4f}, share of the band's squared error {squared / band:.2f}")
+
+
 def main():
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     sub = parser.add_subparsers(dest="check", required=True)
@@ -111,8 +147,12 @@ def main():
     b = sub.add_parser("boundary")
     b.add_argument("subject")
     b.add_argument("--frames", type=int, default=90)
+    r = sub.add_parser("rings")
+    r.add_argument("subject")
+    r.add_argument("run")
+    r.add_argument("--split", default="novel-view")
     args = parser.parse_args()
-    {"fill": fill, "boundary": boundary}[args.check](args)
+    {"fill": fill, "boundary": boundary, "rings": rings}[args.check](args)
 
 
 if __name__ == "__main__":
