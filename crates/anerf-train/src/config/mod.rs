@@ -265,7 +265,8 @@ pub struct StageConfig {
     pub log_every: usize,
     /// Stage 1: what is drawn from the 5×5 band around mask edges: `backdrop` (the default: against the
     /// image over each training camera's static background, estimated from the training frames, without
-    /// the band's labels, for captures from cameras that stand still), `robust` (with the mask's labels,
+    /// the band's labels except where a pixel outside the mask shows that background, for captures from
+    /// cameras that stand still), `robust` (with the mask's labels,
     /// each band ray's loss made robust by [`Self::edge_scale`]), `train` (with the mask's labels and the
     /// plain loss: exact masks) or `skip` (never: the reference's `erode_edge`, kept by the paper's
     /// experiment configs). Earlier versions' boolean (`skip_mask_edges`) is
