@@ -317,9 +317,10 @@ impl RaySampler {
                         (None, _) => out.edge.push(band[i]),
                         (Some(_), known) => {
                             out.edge.push(band[i] && known.is_none());
-                            let clear = on_body[i] == 0
-                                && known.is_some_and(|b| shows_background(color, b));
-                            out.labelled.push(!band[i] || known.is_none() || clear);
+                            out.labelled.push(match known {
+                                Some(b) if band[i] => on_body[i] == 0 && shows_background(color, b),
+                                _ => true,
+                            });
                             out.backgrounds.push(known.unwrap_or([0.0; 3]));
                         }
                     }
