@@ -110,7 +110,6 @@ def boundary(args):
 
 
 def rings(args):
-    cameras = sorted(d for d in os.listdir(f"{args.subject}/mask_cihp"))
     names = ("inside, 1 px", "inside, 2 px", "outside, 1 px", "outside, 2 px")
     totals = {name: np.zeros(3) for name in names}  # squared error, signed error, pixels
     pattern = re.compile(r"frame(\d+)_view(\d+)_gt\.png$")
@@ -122,7 +121,8 @@ def rings(args):
         frame, view = map(int, found.groups())
         truth = np.asarray(Image.open(f"{folder}/{name}"), np.float64)[..., :3] / 255
         drawn = np.asarray(Image.open(f"{folder}/{name[:-len('gt.png')]}pred.png"), np.float64)[..., :3] / 255
-        mask = np.asarray(Image.open(f"{args.subject}/mask_cihp/{cameras[view]}/{frame:06d}.png")) > 0
+        # `anerf synth` names view v's folder Camera_B<v + 1> (crates/anerf-data/src/synthetic/layout.rs).
+        mask = np.asarray(Image.open(f"{args.subject}/mask_cihp/Camera_B{view + 1}/{frame:06d}.png")) > 0
         inner1 = mask & ~ndi.binary_erosion(mask, square(1))
         inner2 = mask & ~ndi.binary_erosion(mask, square(2)) & ~inner1
         outer1 = ndi.binary_dilation(mask, square(1)) & ~mask
